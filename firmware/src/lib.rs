@@ -1,0 +1,17 @@
+//! subnav sensor-head application core: HAL-agnostic and host-testable.
+//!
+//! Board binaries (`src/bin/*.rs`) own the hardware: clocks, UART, timers, buses. They call
+//! [`App`] with the current time and the bytes they received, and send the frames it emits.
+//! Everything here is `no_std`, allocation-free and panic-free on data paths.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod app;
+pub mod log;
+pub mod telemetry;
+
+pub use app::{App, AppConfig};
+pub use telemetry::{TelemetrySink, Telemetry};
+
+/// Firmware version reported in the boot message.
+pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];

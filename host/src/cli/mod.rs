@@ -1,0 +1,12 @@
+//! Subcommands of the `subnav` binary: one module each, with clap `Args` and
+//! `run(args, format) -> anyhow::Result<ExitCode>`.
+
+pub mod decode;
+pub mod qemu;
+
+/// `--format`: human text or one JSON object per line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    Text,
+    Json,
+}

@@ -1,0 +1,5 @@
+//! subnav host library: the telemetry link (decode, QEMU runs) and the host-side methods.
+//! The `subnav` binary (`src/main.rs`) is a thin clap front end over [`cli`].
+
+pub mod cli;
+pub mod link;

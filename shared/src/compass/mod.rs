@@ -1,0 +1,1 @@
+//! Polarization compass (work in progress, issue 3).

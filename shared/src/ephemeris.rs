@@ -1,0 +1,1 @@
+//! Solar ephemeris (work in progress, issue 3).

@@ -1,0 +1,1 @@
+//! Navigation filter (work in progress, issue 4).

@@ -1,0 +1,1 @@
+//! Unscented Kalman filter core (work in progress, issue 4).

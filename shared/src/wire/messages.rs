@@ -1,0 +1,312 @@
+//! Message types on the link between the sensor head (firmware) and the host.
+//!
+//! Conventions (stated once for the whole project, see `docs/ARCHITECTURE.md`):
+//! - Navigation frame: local NED (x north, y east, z down) in metres relative to the origin set
+//!   by [`ConfigItem::Origin`]; depth is `z`, positive down.
+//! - Body frame: FRD (x forward, y right, z down). Attitude quaternions rotate body -> NED and are
+//!   stored `[w, x, y, z]`.
+//! - Time: `t_us` is the sensor head's monotonic clock in microseconds since boot. UTC, once the
+//!   host has set it, is `utc_offset_us + t_us` (see [`Downlink::SetTime`]).
+//! - Units are in the field names (`_m`, `_mps`, `_rad`, `_radps`, `_mps2`, `_pa`, `_c`).
+//!
+//! Everything here is fixed size: the largest encoded frame is known at compile time
+//! ([`super::MAX_UPLINK_FRAME`], [`super::MAX_DOWNLINK_FRAME`]).
+
+use postcard::experimental::max_size::MaxSize;
+use serde::{Deserialize, Serialize};
+
+/// Which board produced the telemetry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Board {
+    /// QEMU `mps2-an386` (Cortex-M4F), sensors simulated by the host.
+    QemuMps2An386,
+    /// STM32F405/F407-class sensor head.
+    Stm32F405,
+}
+
+/// First message after every reset. A host refuses to interpret the rest of a stream whose
+/// `protocol_version` or `schema_fingerprint` differs from its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Boot {
+    pub protocol_version: u16,
+    pub schema_fingerprint: u64,
+    /// Firmware semantic version (major, minor, patch).
+    pub firmware_version: [u8; 3],
+    pub board: Board,
+    /// Sensor-head clock at which this message was sent.
+    pub t_us: u64,
+}
+
+/// What the estimator is currently doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum NavMode {
+    /// No estimator output yet (not initialised, or no estimator on this build).
+    Uninitialised,
+    /// Aligning (static initialisation).
+    Aligning,
+    /// Inertial only: no aiding measurement accepted recently.
+    Inertial,
+    /// Aided navigation (compass / depth / velocity / position fixes).
+    Aided,
+}
+
+/// Navigation solution in the local NED frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct NavSolution {
+    pub t_us: u64,
+    pub mode: NavMode,
+    pub pos_ned_m: [f32; 3],
+    pub vel_ned_mps: [f32; 3],
+    /// Body (FRD) -> NED rotation, `[w, x, y, z]`.
+    pub att_nb_wxyz: [f32; 4],
+    /// 1-sigma standard deviations of the position, velocity and attitude (roll, pitch, yaw) errors.
+    pub sigma_pos_m: [f32; 3],
+    pub sigma_vel_mps: [f32; 3],
+    pub sigma_att_rad: [f32; 3],
+}
+
+/// One IMU sample in the body frame, after scaling to SI units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImuSample {
+    pub t_us: u64,
+    pub gyro_radps: [f32; 3],
+    pub accel_mps2: [f32; 3],
+    pub temp_c: f32,
+}
+
+/// Raw photodiode readings of one polarization unit (ADC counts behind 0/45/90/135 deg polarizers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PolarizationSample {
+    pub t_us: u64,
+    pub unit: u8,
+    pub counts: [i16; 4],
+}
+
+/// Pressure sensor reading and the depth derived from it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DepthSample {
+    pub t_us: u64,
+    pub pressure_pa: f32,
+    pub temp_c: f32,
+    pub depth_m: f32,
+}
+
+/// Raw sensor samples, for recording, replay and offline tuning.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RawSample {
+    Imu(ImuSample),
+    Polarization(PolarizationSample),
+    Depth(DepthSample),
+}
+
+/// Compass output: the heading the polarization compass measured, or why it could not.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CompassReport {
+    pub t_us: u64,
+    /// Heading (rad, from north, clockwise) and its 1-sigma, when a fix was made and UTC is known.
+    pub heading_rad: Option<f32>,
+    pub sigma_heading_rad: f32,
+    /// Sun azimuth relative to the body x axis (rad) and refracted sun elevation (rad), in body level frame.
+    pub sun_rel_azimuth_rad: f32,
+    pub sun_elevation_rad: f32,
+    /// Why there is no fix (0 = fix). Codes are defined by the compass module.
+    pub no_fix_reason: u8,
+    pub units_used: u8,
+}
+
+/// Estimator health, for tuning and for noticing trouble.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FilterHealth {
+    pub t_us: u64,
+    /// Latest normalised innovation squared per update kind: heading, depth, velocity, position.
+    pub nis: [f32; 4],
+    /// Fading factor applied at the latest update (1.0 = no fading).
+    pub lambda: f32,
+    /// Diagonal of the (adapted) process noise, per state group: attitude, velocity, position,
+    /// gyro bias, accel bias (mean of each group's diagonal).
+    pub q_diag: [f32; 5],
+    /// Diagonal of the (adapted) measurement noise: heading, depth, velocity, position.
+    pub r_diag: [f32; 4],
+    /// Covariance repairs (symmetrise / eigenvalue floor) since boot.
+    pub pd_repairs: u32,
+    /// Measurements rejected by the innovation gate since boot.
+    pub gate_rejects: u32,
+    /// Samples rejected as non-finite since boot.
+    pub nonfinite_rejects: u32,
+    /// CPU load over the last reporting period, per mille.
+    pub cpu_load_permille: u16,
+}
+
+/// Where a fault happened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FaultSource {
+    Imu,
+    Polarization { unit: u8 },
+    Depth,
+    Link,
+    Filter,
+    Scheduler,
+}
+
+/// What went wrong.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FaultKind {
+    BusNack,
+    BusTimeout,
+    BusOther,
+    BadCrc,
+    IdentityMismatch,
+    Stuck,
+    Saturated,
+    NonFinite,
+    /// A downlink frame was corrupt (bad COBS / CRC / postcard).
+    CorruptFrame,
+    /// A task overran its period.
+    Overrun,
+    /// Telemetry could not be sent (output full); `count` messages were dropped.
+    TelemetryDropped,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Fault {
+    pub t_us: u64,
+    pub source: FaultSource,
+    pub kind: FaultKind,
+    /// Occurrences since boot of this source/kind pair.
+    pub count: u32,
+}
+
+/// Why a downlink command was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    OutOfRange,
+    NotFinite,
+    NotSupported,
+    NotPositiveDefinite,
+    Busy,
+}
+
+/// The sensor head's answer to every downlink command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CommandAck {
+    pub seq: u16,
+    pub result: Result<(), Refusal>,
+}
+
+/// Firmware -> host.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Uplink {
+    Boot(Boot),
+    Nav(NavSolution),
+    Raw(RawSample),
+    Compass(CompassReport),
+    Health(FilterHealth),
+    Fault(Fault),
+    Ack(CommandAck),
+}
+
+impl Uplink {
+    /// Sensor-head time stamp of the message.
+    pub fn t_us(&self) -> Option<u64> {
+        Some(match self {
+            Uplink::Boot(m) => m.t_us,
+            Uplink::Nav(m) => m.t_us,
+            Uplink::Raw(RawSample::Imu(m)) => m.t_us,
+            Uplink::Raw(RawSample::Polarization(m)) => m.t_us,
+            Uplink::Raw(RawSample::Depth(m)) => m.t_us,
+            Uplink::Compass(m) => m.t_us,
+            Uplink::Health(m) => m.t_us,
+            Uplink::Fault(m) => m.t_us,
+            Uplink::Ack(_) => return None,
+        })
+    }
+
+    /// Short name of the message kind (used for channel names and counts).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Uplink::Boot(_) => "boot",
+            Uplink::Nav(_) => "nav",
+            Uplink::Raw(RawSample::Imu(_)) => "raw.imu",
+            Uplink::Raw(RawSample::Polarization(_)) => "raw.polarization",
+            Uplink::Raw(RawSample::Depth(_)) => "raw.depth",
+            Uplink::Compass(_) => "compass",
+            Uplink::Health(_) => "health",
+            Uplink::Fault(_) => "fault",
+            Uplink::Ack(_) => "ack",
+        }
+    }
+}
+
+/// A configuration value. Each is range-checked by the firmware; a bad value is refused with a
+/// [`Refusal`] in the [`CommandAck`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigItem {
+    /// Telemetry rate of navigation solutions, Hz (1..=50).
+    NavRateHz(u8),
+    /// Whether raw samples are streamed.
+    StreamRaw(bool),
+    /// Origin of the local NED frame (geodetic, rad and metres).
+    Origin { lat_rad: f64, lon_rad: f64, alt_m: f32 },
+    /// Water density for pressure -> depth, kg/m^3 (990..=1050).
+    WaterDensityKgm3(f32),
+}
+
+/// Host -> firmware command body.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    SetConfig(ConfigItem),
+    /// UTC microseconds since the Unix epoch at sensor-head time `t_us`.
+    SetTime { t_us: u64, utc_unix_us: i64 },
+    /// A position fix (e.g. a recognised topological node) with its covariance (upper triangle,
+    /// row-major: xx, xy, xz, yy, yz, zz) at sensor-head time `t_us`.
+    PositionFix { t_us: u64, pos_ned_m: [f32; 3], cov_ned_m2: [f32; 6] },
+    /// Re-initialise the estimator (not a reboot).
+    ResetFilter,
+    /// Reboot the sensor head.
+    Reboot,
+}
+
+/// Host -> firmware, with a sequence number echoed in the [`CommandAck`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Downlink {
+    pub seq: u16,
+    pub command: Command,
+}
