@@ -1,0 +1,239 @@
+//! The adaptive layer (spec A5): Sage-Husa decaying-memory noise statistics and the fading
+//! factor. Every part has its own switch; with all of them off the filter is a plain UKF and
+//! runs exactly the same code path otherwise.
+//!
+//! Sage-Husa, with forgetting factor `b` and `d_k = (1 - b) / (1 - b^(k+1))`:
+//! - `q_k = (1-d_k) q_{k-1} + d_k (x_k - sum_i Wm_i f(chi_i))` (sum of the `K e` of the updates
+//!   since the last predict),
+//! - `Q_k = (1-d_k) Q_{k-1} + d_k (sum K e e^T K^T + P_k - sum_i Wc_i (chi_i - x^-)(chi_i - x^-)^T)`,
+//! - `r_k = (1-d_k) r_{k-1} + d_k (z_k - sum_i Wm_i z_i)`,
+//! - `R_k = (1-d_k) R_{k-1} + d_k (e e^T - sum_i Wc_i (z_i - z^)(z_i - z^)^T)`.
+//!
+//! Safeguard (ours, counted in the health): the unbiased recursions above subtract a covariance
+//! and can lose positive definiteness. When the candidate is not PD (Cholesky fails, or an
+//! eigenvalue would fall under the configured floor), the biased form is used instead, which drops
+//! the subtracted term (`Q_k = (1-d_k) Q_{k-1} + d_k sum K e e^T K^T`, `R_k = (1-d_k) R_{k-1} +
+//! d_k e e^T`, both PD because `Q_{k-1}`/`R_{k-1}` are), and its eigenvalues are floored.
+//!
+//! Robustness (ours): the innovation fed to the R recursion is clipped to the gate boundary
+//! (Huber-style), and gated-out measurements do feed it (clipped). Without that, a sensor whose
+//! noise suddenly grows has its measurements rejected by the gate and R can never learn the new
+//! level; with it, one outlier moves R by at most `d_k * gate * S`.
+//!
+//! Fading factor (strong tracking): innovation covariance with forgetting `rho`:
+//! `V_0 = e e^T`, `V_k = (rho V_{k-1} + e e^T) / (1 + rho)`. Divergence test
+//! `e^T e > S_test * tr(E[e e^T])` with `E[e e^T] = P_zz + R` from the sigma points. When it fires,
+//! `lambda_k = max(lambda_0, tr(N_k) / tr(M_k))` with `N_k = V_k - R_k` and `M_k = P_zz` (the part
+//! of the predicted innovation covariance that comes from `P_{k|k-1}`), capped at `lambda_max`,
+//! and `P_{k|k-1} <- lambda_k P_{k|k-1}`; `P_zz` and `P_xz` are scaled by the same factor (exact for
+//! a measurement linear in the state, the usual strong-tracking approximation otherwise).
+
+use nalgebra::{RealField, SMatrix, SVector};
+
+use super::pd;
+
+/// Switches and tuning of the adaptive layer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AdaptConfig<T> {
+    /// Sage-Husa forgetting factor `b` (0 < b < 1, typically 0.95..0.995).
+    pub b: T,
+    /// Initial value of the step counter `k` used in `d_k`: 0 is the spec's recursion (the first
+    /// sample replaces the prior); a larger `k0` lets the configured Q/R count as
+    /// about `k0` earlier samples.
+    pub k0: u32,
+    /// Estimate the process-noise mean `q`.
+    pub q_mean: bool,
+    /// Estimate the process-noise covariance `Q`.
+    pub q_cov: bool,
+    /// Estimate the measurement-noise mean `r`.
+    pub r_mean: bool,
+    /// Estimate the measurement-noise covariance `R`.
+    pub r_cov: bool,
+    /// Apply the fading factor.
+    pub fading: bool,
+    /// Divergence test multiplier `S >= 1`.
+    pub fading_s: T,
+    /// Lower bound `lambda_0` of the fading factor (>= 1).
+    pub lambda0: T,
+    /// Upper bound of the fading factor (ours: a safety cap).
+    pub lambda_max: T,
+    /// Forgetting factor `rho` of the innovation covariance estimate `V_k`.
+    pub rho: T,
+}
+
+impl<T: RealField + Copy> AdaptConfig<T> {
+    /// Everything off: a plain UKF.
+    pub fn plain() -> Self {
+        Self {
+            b: T::from_subset(&0.98),
+            k0: 0,
+            q_mean: false,
+            q_cov: false,
+            r_mean: false,
+            r_cov: false,
+            fading: false,
+            fading_s: T::from_subset(&4.0),
+            lambda0: T::one(),
+            lambda_max: T::from_subset(&10.0),
+            rho: T::from_subset(&0.95),
+        }
+    }
+
+    /// Whether any adaptive part is switched on.
+    pub fn any(&self) -> bool {
+        self.q_mean || self.q_cov || self.r_mean || self.r_cov || self.fading
+    }
+
+    /// Range check; `false` means refuse the configuration.
+    pub fn is_valid(&self) -> bool {
+        self.b > T::zero()
+            && self.b < T::one()
+            && self.fading_s >= T::one()
+            && self.lambda0 >= T::one()
+            && self.lambda_max >= self.lambda0
+            && self.rho > T::zero()
+            && self.rho < T::one()
+            && self.lambda_max.is_finite()
+    }
+}
+
+/// Sage-Husa weight `d_k = (1 - b) / (1 - b^(k+1))`.
+pub fn sage_husa_d<T: RealField + Copy>(b: T, k: u32) -> T {
+    // b^(k+1) underflows to 0 for large k, which gives the correct limit 1 - b.
+    let bk = b.powi(k.saturating_add(1).min(i32::MAX as u32) as i32);
+    (T::one() - b) / (T::one() - bk)
+}
+
+/// Per-measurement noise statistics: the (adapted) `R`, its mean `r`, the counters of the
+/// Sage-Husa recursion and of the fading factor's innovation estimate, and the gate tuning.
+/// Each sensor owns one of these and passes it to [`super::Ukf::update`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasNoise<T: RealField + Copy, const M: usize> {
+    /// Measurement noise covariance (the configured value, adapted when `r_cov` is on).
+    pub r: SMatrix<T, M, M>,
+    /// Measurement noise mean (zero unless `r_mean` is on).
+    pub r_mean: SVector<T, M>,
+    /// Eigenvalue floor of an adapted `R`.
+    pub r_floor: T,
+    /// Sage-Husa step counter.
+    pub k: u32,
+    /// Fading factor's innovation covariance estimate `V_k` and its counter.
+    pub v: SMatrix<T, M, M>,
+    pub v_k: u32,
+    /// Gate: chi-square threshold on the NIS (e.g. [`super::gate::chi2_999`]); infinite = off.
+    pub gate: T,
+    /// Gate floor: the state part of the gating covariance is capped at `gate_state_max` times
+    /// the measurement noise (trace ratio), so the gate can still reject when `P` is huge.
+    pub gate_state_max: T,
+    /// After this many consecutive rejections the cap is lifted for the next measurement
+    /// (re-acquisition after an outage); 0 = never.
+    pub gate_release_after: u32,
+    /// Consecutive rejections so far.
+    pub consecutive_rejects: u32,
+}
+
+impl<T: RealField + Copy, const M: usize> MeasNoise<T, M> {
+    /// Noise `r`, no gate, no adaptation state.
+    pub fn new(r: SMatrix<T, M, M>) -> Self {
+        Self {
+            r,
+            r_mean: SVector::zeros(),
+            r_floor: T::zero(),
+            k: 0,
+            v: SMatrix::zeros(),
+            v_k: 0,
+            gate: T::max_value().unwrap_or(T::one() / T::default_epsilon()),
+            gate_state_max: T::max_value().unwrap_or(T::one() / T::default_epsilon()),
+            gate_release_after: 0,
+            consecutive_rejects: 0,
+        }
+    }
+
+    /// With a chi-square gate and its floor.
+    pub fn with_gate(mut self, gate: T, gate_state_max: T, release_after: u32) -> Self {
+        self.gate = gate;
+        self.gate_state_max = gate_state_max;
+        self.gate_release_after = release_after;
+        self
+    }
+
+    /// With an eigenvalue floor for the adapted R.
+    pub fn with_floor(mut self, r_floor: T) -> Self {
+        self.r_floor = r_floor;
+        self
+    }
+
+    /// Start the Sage-Husa counter at `k0`.
+    pub fn with_k0(mut self, k0: u32) -> Self {
+        self.k = k0;
+        self
+    }
+}
+
+/// Outcome of one adaptive covariance recursion.
+pub(crate) struct Adapted<T: RealField + Copy, const D: usize> {
+    pub cov: SMatrix<T, D, D>,
+    /// The biased fallback (and/or eigenvalue floor) had to be used.
+    pub fallback: bool,
+}
+
+/// One Sage-Husa covariance step with the PD safeguard:
+/// candidate `(1-d) old + d (pos + delta)`, fallback `(1-d) old + d pos`, then floor.
+/// `pos` is the PSD part (`e e^T`, `K e e^T K^T`), `delta` the correction that may break PD.
+pub(crate) fn sage_husa_cov<T: RealField + Copy, const D: usize>(
+    old: &SMatrix<T, D, D>,
+    d: T,
+    pos: &SMatrix<T, D, D>,
+    delta: &SMatrix<T, D, D>,
+    floor: T,
+) -> Option<Adapted<T, D>> {
+    let one_d = T::one() - d;
+    let mut cand = old * one_d + (pos + delta) * d;
+    pd::symmetrize(&mut cand);
+    if pd::all_finite(&cand) && min_diag(&cand) > floor {
+        if let Some(c) = nalgebra::linalg::Cholesky::new(cand) {
+            let l = c.l();
+            let ok = (0..D).all(|i| l[(i, i)] * l[(i, i)] > floor);
+            if ok {
+                return Some(Adapted { cov: cand, fallback: false });
+            }
+        }
+    }
+    let mut biased = old * one_d + pos * d;
+    pd::symmetrize(&mut biased);
+    let tiny = T::default_epsilon();
+    let fl = if floor > tiny { floor } else { tiny };
+    let cov = pd::repair(&biased, fl, T::zero())?;
+    Some(Adapted { cov, fallback: true })
+}
+
+fn min_diag<T: RealField + Copy, const D: usize>(m: &SMatrix<T, D, D>) -> T {
+    (0..D).fold(T::max_value().unwrap_or(T::one()), |a, i| if m[(i, i)] < a { m[(i, i)] } else { a })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix2;
+
+    #[test]
+    fn d_k_matches_the_formula() {
+        let b = 0.96f64;
+        assert!((sage_husa_d(b, 0) - 1.0).abs() < 1e-12);
+        assert!((sage_husa_d(b, 1) - (1.0 - b) / (1.0 - b * b)).abs() < 1e-12);
+        assert!((sage_husa_d(b, 1_000_000) - (1.0 - b)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn unbiased_step_losing_pd_falls_back() {
+        let old = Matrix2::<f64>::identity();
+        let pos = Matrix2::<f64>::zeros();
+        let neg = Matrix2::<f64>::identity() * -5.0;
+        let a = sage_husa_cov(&old, 0.5, &pos, &neg, 1e-6).unwrap();
+        assert!(a.fallback);
+        assert!((a.cov[(0, 0)] - 0.5).abs() < 1e-9);
+        let b = sage_husa_cov(&old, 0.5, &(Matrix2::identity() * 3.0), &(Matrix2::identity() * -1.0), 1e-6).unwrap();
+        assert!(!b.fallback);
+        assert!((b.cov[(1, 1)] - 1.5).abs() < 1e-12);
+    }
+}

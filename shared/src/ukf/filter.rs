@@ -1,0 +1,448 @@
+//! The filter: state `x`, covariance `P`, predict and update.
+//!
+//! Sigma points are drawn from the current `(x, P)` at every predict and update (as FilterPy
+//! does: its predict re-draws `sigmas_f` from the prior), so updates of different sizes and rates
+//! can follow each other in any order. `P` is stored with its Cholesky factor; every write goes
+//! through [`super::pd::finalize`] (symmetrize, factor, repair and count if needed), and the
+//! factor is reused for the next sigma-point draw. A step that would produce a non-finite state
+//! leaves the filter untouched and returns an error.
+
+use core::marker::PhantomData;
+
+use nalgebra::{RealField, SMatrix, SVector};
+use nalgebra::linalg::Cholesky;
+
+use super::adapt::{sage_husa_cov, sage_husa_d, AdaptConfig, MeasNoise};
+use super::gate::{gating_cov, nis};
+use super::pd::{all_finite, finalize};
+use super::space::{Euclidean, Space};
+use super::weights::SigmaWeights;
+
+/// Tuning of a [`Ukf`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UkfConfig<T> {
+    /// Sigma-point spread.
+    pub alpha: T,
+    /// Prior knowledge of the distribution (2 is optimal for Gaussians).
+    pub beta: T,
+    /// Secondary scaling.
+    pub kappa: T,
+    /// Adaptive layer switches ([`AdaptConfig::plain`] = plain UKF).
+    pub adapt: AdaptConfig<T>,
+    /// Absolute eigenvalue floor applied when `P` must be repaired.
+    pub p_floor: T,
+    /// Relative eigenvalue floor (times the largest eigenvalue) for `P` repairs.
+    pub p_rel_floor: T,
+    /// Eigenvalue floor of an adapted `Q`.
+    pub q_floor: T,
+}
+
+impl<T: RealField + Copy> UkfConfig<T> {
+    /// Plain UKF with the given unscented-transform parameters.
+    pub fn plain(alpha: T, beta: T, kappa: T) -> Self {
+        Self {
+            alpha,
+            beta,
+            kappa,
+            adapt: AdaptConfig::plain(),
+            p_floor: T::zero(),
+            p_rel_floor: T::zero(),
+            q_floor: T::zero(),
+        }
+    }
+}
+
+/// Counters and latest values for telemetry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UkfHealth<T> {
+    pub predicts: u32,
+    pub updates_accepted: u32,
+    /// Covariance repairs of `P` (eigenvalue floor after symmetrization did not make it PD).
+    pub pd_repairs: u32,
+    /// Sage-Husa Q/R candidates that were not PD and were replaced by the biased form + floor.
+    pub adapt_fallbacks: u32,
+    /// Inputs or model outputs that were not finite (the step was not applied).
+    pub nonfinite_rejects: u32,
+    /// Measurements rejected by the innovation gate.
+    pub gate_rejects: u32,
+    /// Times the fading factor fired.
+    pub fading_events: u32,
+    /// Fading factor of the latest accepted update (1 = none).
+    pub last_lambda: T,
+}
+
+/// Why a step was not applied. The filter state is unchanged after any of them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UkfError {
+    /// A measurement, noise matrix or scale was NaN or infinite.
+    NonFiniteInput,
+    /// The process or measurement model returned a non-finite value, or the result was not finite.
+    NonFiniteResult,
+    /// The innovation covariance could not be factored.
+    NotPositiveDefinite,
+    /// Weights could not be built (S != 2N+1, or N + lambda <= 0) or the adaptive config is out
+    /// of range.
+    BadConfig,
+}
+
+/// What an update did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpdateReport<T> {
+    /// Whether the measurement was applied (false = rejected by the gate).
+    pub accepted: bool,
+    /// NIS against the full predicted innovation covariance `P_zz + R`.
+    pub nis: T,
+    /// NIS against the gating covariance (the value compared with the gate).
+    pub nis_gate: T,
+    /// Fading factor applied (1 = none).
+    pub lambda: T,
+}
+
+/// Unscented Kalman filter with `N` states and `S = 2N + 1` sigma points, state space `X`.
+#[derive(Debug, Clone)]
+pub struct Ukf<T: RealField + Copy, const N: usize, const S: usize, X = Euclidean> {
+    x: SVector<T, N>,
+    p: SMatrix<T, N, N>,
+    l: SMatrix<T, N, N>,
+    /// Process noise per predict (adapted when `q_cov` is on).
+    q: SMatrix<T, N, N>,
+    /// Process noise mean (adapted when `q_mean` is on).
+    q_mean: SVector<T, N>,
+    cfg: UkfConfig<T>,
+    w: SigmaWeights<T, S>,
+    q_k: u32,
+    spread: SMatrix<T, N, N>,
+    acc_ke: SVector<T, N>,
+    acc_keek: SMatrix<T, N, N>,
+    acc_n: u32,
+    health: UkfHealth<T>,
+    _space: PhantomData<X>,
+}
+
+impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T, N, S, X> {
+    /// A filter at `x0` with covariance `p0` and process noise `q`.
+    pub fn new(
+        cfg: UkfConfig<T>,
+        x0: SVector<T, N>,
+        p0: SMatrix<T, N, N>,
+        q: SMatrix<T, N, N>,
+    ) -> Result<Self, UkfError> {
+        let w = SigmaWeights::<T, S>::merwe(N, cfg.alpha, cfg.beta, cfg.kappa)
+            .map_err(|_| UkfError::BadConfig)?;
+        if !cfg.adapt.is_valid() {
+            return Err(UkfError::BadConfig);
+        }
+        if !all_finite(&x0) || !all_finite(&p0) || !all_finite(&q) {
+            return Err(UkfError::NonFiniteInput);
+        }
+        let f = finalize(p0, cfg.p_floor, cfg.p_rel_floor).ok_or(UkfError::NotPositiveDefinite)?;
+        let mut health = UkfHealth {
+            predicts: 0,
+            updates_accepted: 0,
+            pd_repairs: 0,
+            adapt_fallbacks: 0,
+            nonfinite_rejects: 0,
+            gate_rejects: 0,
+            fading_events: 0,
+            last_lambda: T::one(),
+        };
+        if f.repaired {
+            health.pd_repairs += 1;
+        }
+        Ok(Self {
+            x: x0,
+            p: f.p,
+            l: f.l,
+            q,
+            q_mean: SVector::zeros(),
+            q_k: cfg.adapt.k0,
+            cfg,
+            w,
+            spread: SMatrix::zeros(),
+            acc_ke: SVector::zeros(),
+            acc_keek: SMatrix::zeros(),
+            acc_n: 0,
+            health,
+            _space: PhantomData,
+        })
+    }
+
+    pub fn x(&self) -> &SVector<T, N> {
+        &self.x
+    }
+    pub fn p(&self) -> &SMatrix<T, N, N> {
+        &self.p
+    }
+    pub fn q(&self) -> &SMatrix<T, N, N> {
+        &self.q
+    }
+    pub fn health(&self) -> &UkfHealth<T> {
+        &self.health
+    }
+    pub fn config(&self) -> &UkfConfig<T> {
+        &self.cfg
+    }
+    pub fn weights(&self) -> &SigmaWeights<T, S> {
+        &self.w
+    }
+
+    /// Replace the state (e.g. reset an error state to zero after injecting it).
+    pub fn set_x(&mut self, x: SVector<T, N>) -> Result<(), UkfError> {
+        if !all_finite(&x) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteInput);
+        }
+        self.x = x;
+        Ok(())
+    }
+
+    /// Replace the covariance (symmetrized and checked; a repair is counted).
+    pub fn set_p(&mut self, p: SMatrix<T, N, N>) -> Result<(), UkfError> {
+        if !all_finite(&p) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteInput);
+        }
+        self.commit_p(p)
+    }
+
+    /// Replace the process noise.
+    pub fn set_q(&mut self, q: SMatrix<T, N, N>) -> Result<(), UkfError> {
+        if !all_finite(&q) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteInput);
+        }
+        self.q = q;
+        Ok(())
+    }
+
+    fn commit_p(&mut self, p: SMatrix<T, N, N>) -> Result<(), UkfError> {
+        let f = finalize(p, self.cfg.p_floor, self.cfg.p_rel_floor).ok_or(UkfError::NonFiniteResult)?;
+        if f.repaired {
+            self.health.pd_repairs += 1;
+        }
+        self.p = f.p;
+        self.l = f.l;
+        Ok(())
+    }
+
+    /// The `2N+1` sigma points of the current `(x, P)`.
+    pub fn sigma_points(&self) -> [SVector<T, N>; S] {
+        let mut pts = [self.x; S];
+        for i in 0..N {
+            let d: SVector<T, N> = self.l.column(i) * self.w.gamma;
+            if let Some(p) = pts.get_mut(1 + i) {
+                *p = X::add(&self.x, &d);
+            }
+            if let Some(p) = pts.get_mut(1 + N + i) {
+                *p = X::add(&self.x, &(-d));
+            }
+        }
+        pts
+    }
+
+    /// Sage-Husa Q/q step from the updates since the previous predict.
+    fn adapt_q(&mut self) {
+        let a = self.cfg.adapt;
+        if self.acc_n == 0 || !(a.q_cov || a.q_mean) {
+            return;
+        }
+        let d = sage_husa_d(a.b, self.q_k);
+        self.q_k = self.q_k.saturating_add(1);
+        if a.q_mean {
+            self.q_mean = self.q_mean * (T::one() - d) + self.acc_ke * d;
+        }
+        if a.q_cov {
+            let delta = self.p - self.spread;
+            match sage_husa_cov(&self.q, d, &self.acc_keek, &delta, self.cfg.q_floor) {
+                Some(ad) => {
+                    if ad.fallback {
+                        self.health.adapt_fallbacks += 1;
+                    }
+                    self.q = ad.cov;
+                }
+                None => self.health.adapt_fallbacks += 1, // keep the old Q
+            }
+        }
+    }
+
+    /// Time update: `x_i <- f(sigma_i)`, `P <- sum Wc r r^T + q_scale * Q`.
+    pub fn predict<F>(&mut self, q_scale: T, mut f: F) -> Result<(), UkfError>
+    where
+        F: FnMut(&SVector<T, N>) -> SVector<T, N>,
+    {
+        if !q_scale.is_finite() || q_scale < T::zero() {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteInput);
+        }
+        let pts = self.sigma_points();
+        let mut prop = [SVector::<T, N>::zeros(); S];
+        for (o, s) in prop.iter_mut().zip(pts.iter()) {
+            *o = f(s);
+            if !all_finite(o) {
+                self.health.nonfinite_rejects += 1;
+                return Err(UkfError::NonFiniteResult);
+            }
+        }
+        self.adapt_q();
+        let xm = X::mean(&prop, &self.w.wm);
+        let mut spread = SMatrix::<T, N, N>::zeros();
+        for (c, wc) in prop.iter().zip(self.w.wc.iter()) {
+            let r = X::residual(c, &xm);
+            spread.ger(*wc, &r, &r, T::one());
+        }
+        let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &self.q_mean) } else { xm };
+        if !all_finite(&x_new) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteResult);
+        }
+        self.commit_p(spread + self.q * q_scale)?;
+        self.x = x_new;
+        self.spread = spread;
+        self.acc_ke = SVector::zeros();
+        self.acc_keek = SMatrix::zeros();
+        self.acc_n = 0;
+        self.health.predicts = self.health.predicts.wrapping_add(1);
+        Ok(())
+    }
+
+    /// Measurement update with `z` (space `Z`), noise statistics `noise` and model `h`.
+    ///
+    /// A rejected (gated) measurement returns `Ok` with `accepted = false`; non-finite input
+    /// returns an error. In both cases `x` and `P` are unchanged.
+    pub fn update<const M: usize, Z, H>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        mut h: H,
+    ) -> Result<UpdateReport<T>, UkfError>
+    where
+        Z: Space<T, M>,
+        H: FnMut(&SVector<T, N>) -> SVector<T, M>,
+    {
+        if !all_finite(z) || !all_finite(&noise.r) || !all_finite(&noise.r_mean) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteInput);
+        }
+        let a = self.cfg.adapt;
+        let pts = self.sigma_points();
+        let mut zs = [SVector::<T, M>::zeros(); S];
+        for (o, s) in zs.iter_mut().zip(pts.iter()) {
+            *o = h(s);
+            if !all_finite(o) {
+                self.health.nonfinite_rejects += 1;
+                return Err(UkfError::NonFiniteResult);
+            }
+        }
+        let zhat0 = Z::mean(&zs, &self.w.wm);
+        let zhat = if a.r_mean { Z::add(&zhat0, &noise.r_mean) } else { zhat0 };
+        let mut pzz = SMatrix::<T, M, M>::zeros();
+        let mut pxz = SMatrix::<T, N, M>::zeros();
+        for ((zi, xi), wc) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()) {
+            let rz = Z::residual(zi, &zhat);
+            let rx = X::residual(xi, &self.x);
+            pzz.ger(*wc, &rz, &rz, T::one());
+            pxz.ger(*wc, &rx, &rz, T::one());
+        }
+        let e = Z::residual(z, &zhat);
+        let mut s = pzz + noise.r;
+        let nis_full = match nis(&e, &s) {
+            Some(v) => v,
+            None => {
+                self.health.nonfinite_rejects += 1;
+                return Err(UkfError::NotPositiveDefinite);
+            }
+        };
+        let release = noise.gate_release_after > 0 && noise.consecutive_rejects >= noise.gate_release_after;
+        let s_gate = if release { s } else { gating_cov(&pzz, &noise.r, noise.gate_state_max) };
+        let nis_gate = nis(&e, &s_gate).ok_or(UkfError::NotPositiveDefinite)?;
+
+        if !(nis_gate <= noise.gate) {
+            noise.consecutive_rejects = noise.consecutive_rejects.saturating_add(1);
+            self.health.gate_rejects = self.health.gate_rejects.wrapping_add(1);
+            // Clipped innovation still informs R (see adapt module doc).
+            let clip = (noise.gate / nis_gate).sqrt();
+            self.adapt_r(noise, &(e * clip), z, &zhat0, &pzz);
+            return Ok(UpdateReport { accepted: false, nis: nis_full, nis_gate, lambda: T::one() });
+        }
+
+        // Fading factor.
+        let mut lambda = T::one();
+        let mut p_prior = self.p;
+        if a.fading {
+            let eet = e * e.transpose();
+            noise.v = if noise.v_k == 0 { eet } else { (noise.v * a.rho + eet) / (T::one() + a.rho) };
+            noise.v_k = noise.v_k.saturating_add(1);
+            let tr_m = pzz.trace();
+            if e.dot(&e) > a.fading_s * s.trace() && tr_m > T::zero() {
+                let ratio = (noise.v - noise.r).trace() / tr_m;
+                let mut l = if ratio > a.lambda0 { ratio } else { a.lambda0 };
+                if !(l <= a.lambda_max) {
+                    l = a.lambda_max;
+                }
+                if l > T::one() {
+                    lambda = l;
+                    p_prior *= l;
+                    pzz *= l;
+                    pxz *= l;
+                    s = pzz + noise.r;
+                    self.health.fading_events = self.health.fading_events.wrapping_add(1);
+                }
+            }
+        }
+
+        // Gain K = Pxz S^-1 via Cholesky: K^T = S^-1 Pxz^T.
+        let chol = Cholesky::new(s).ok_or(UkfError::NotPositiveDefinite)?;
+        let k: SMatrix<T, N, M> = chol.solve(&pxz.transpose()).transpose();
+        let dx = k * e;
+        let x_new = X::add(&self.x, &dx);
+        let p_new = p_prior - k * s * k.transpose();
+        if !all_finite(&x_new) || !all_finite(&p_new) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteResult);
+        }
+        self.commit_p(p_new)?;
+        self.x = x_new;
+        noise.consecutive_rejects = 0;
+        self.health.last_lambda = lambda;
+        self.health.updates_accepted = self.health.updates_accepted.wrapping_add(1);
+        if a.q_cov || a.q_mean {
+            self.acc_ke += dx;
+            self.acc_keek.ger(T::one(), &dx, &dx, T::one());
+            self.acc_n = self.acc_n.saturating_add(1);
+        }
+        self.adapt_r(noise, &e, z, &zhat0, &pzz);
+        Ok(UpdateReport { accepted: true, nis: nis_full, nis_gate, lambda })
+    }
+
+    /// Sage-Husa r/R step (spec A5) with the PD safeguard.
+    fn adapt_r<const M: usize>(
+        &mut self,
+        noise: &mut MeasNoise<T, M>,
+        e: &SVector<T, M>,
+        z: &SVector<T, M>,
+        zhat0: &SVector<T, M>,
+        pzz: &SMatrix<T, M, M>,
+    ) {
+        let a = self.cfg.adapt;
+        if !(a.r_cov || a.r_mean) {
+            return;
+        }
+        let d = sage_husa_d(a.b, noise.k);
+        noise.k = noise.k.saturating_add(1);
+        if a.r_mean {
+            noise.r_mean = noise.r_mean * (T::one() - d) + (z - zhat0) * d;
+        }
+        if a.r_cov {
+            let eet = e * e.transpose();
+            match sage_husa_cov(&noise.r, d, &eet, &(-pzz), noise.r_floor) {
+                Some(ad) => {
+                    if ad.fallback {
+                        self.health.adapt_fallbacks = self.health.adapt_fallbacks.wrapping_add(1);
+                    }
+                    noise.r = ad.cov;
+                }
+                None => self.health.adapt_fallbacks = self.health.adapt_fallbacks.wrapping_add(1),
+            }
+        }
+    }
+}
