@@ -1,1 +1,0 @@
-//! Solar ephemeris (work in progress, issue 3).
