@@ -2,4 +2,5 @@
 //! The `subnav` binary (`src/main.rs`) is a thin clap front end over [`cli`].
 
 pub mod cli;
+pub mod fgo;
 pub mod link;
