@@ -19,7 +19,10 @@
 
 pub mod factors;
 pub mod gating;
+pub mod log;
 pub mod preintegration;
+pub mod sim;
+pub mod smoother;
 pub mod so3;
 pub mod solver;
 pub mod state;
