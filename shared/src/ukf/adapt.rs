@@ -130,6 +130,9 @@ pub struct MeasNoise<T: RealField + Copy, const M: usize> {
     pub gate_release_after: u32,
     /// Consecutive rejections so far.
     pub consecutive_rejects: u32,
+    /// Whether the Sage-Husa r/R recursion runs for this measurement (when switched on in the
+    /// filter's [`AdaptConfig`]); off for measurements that bring their own covariance.
+    pub adapt: bool,
 }
 
 impl<T: RealField + Copy, const M: usize> MeasNoise<T, M> {
@@ -146,6 +149,7 @@ impl<T: RealField + Copy, const M: usize> MeasNoise<T, M> {
             gate_state_max: T::max_value().unwrap_or(T::one() / T::default_epsilon()),
             gate_release_after: 0,
             consecutive_rejects: 0,
+            adapt: true,
         }
     }
 

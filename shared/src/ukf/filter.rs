@@ -424,7 +424,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         pzz: &SMatrix<T, M, M>,
     ) {
         let a = self.cfg.adapt;
-        if !(a.r_cov || a.r_mean) {
+        if !(a.r_cov || a.r_mean) || !noise.adapt {
             return;
         }
         let d = sage_husa_d(a.b, noise.k);

@@ -1,0 +1,30 @@
+//! Depth update from the pressure sensor (`DepthSample::depth_m`, NED z, positive down).
+//!
+//! `z = p_z + dp_z`: linear, so the UKF reproduces the Kalman update exactly.
+
+use nalgebra::{SVector, Vector1};
+
+use crate::ukf::{Euclidean, UpdateReport};
+
+use super::filter::{NavError, NavFilter, KIND_DEPTH};
+use super::state::{NominalState, POS};
+
+/// Predicted depth of an error sigma point.
+pub fn h_depth<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector1<f32> {
+    Vector1::new(nom.pos_ned_m.z + dx.get(POS + 2).copied().unwrap_or(0.0))
+}
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// Depth (m, positive down) with its 1-sigma (`None`: configured/adapted noise).
+    pub fn update_depth(&mut self, t_us: u64, depth_m: f32, sigma_m: Option<f32>) -> Result<UpdateReport<f32>, NavError> {
+        self.begin_update(&[depth_m, sigma_m.unwrap_or(1.0)])?;
+        if let Some(s) = sigma_m.filter(|s| *s > 0.0) {
+            if !(self.cfg.ukf.adapt.r_cov && self.noise_depth.adapt) {
+                self.noise_depth.r[(0, 0)] = s * s;
+            }
+        }
+        let nom = self.nom;
+        let r = self.ukf.update::<1, Euclidean, _>(&Vector1::new(depth_m), &mut self.noise_depth, |dx| h_depth(&nom, dx));
+        self.end_update(KIND_DEPTH, t_us, r)
+    }
+}

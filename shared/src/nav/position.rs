@@ -1,0 +1,41 @@
+//! Position fix with covariance (what the host sends after recognizing a topological node:
+//! `Command::PositionFix`).
+//!
+//! `z = p + dp`, NED metres; the fix brings its own covariance (upper triangle xx, xy, xz, yy,
+//! yz, zz), so R adaptation is off for it by default. The covariance is checked (finite, PD) and
+//! refused otherwise.
+
+use nalgebra::{Matrix3, SVector, Vector3};
+
+use crate::ukf::{Euclidean, UpdateReport};
+use crate::ukf::pd;
+
+use super::filter::{NavError, NavFilter, KIND_POSITION};
+use super::state::{seg, NominalState, POS};
+
+/// Predicted position of an error sigma point.
+pub fn h_position<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector3<f32> {
+    nom.pos_ned_m + seg(dx, POS)
+}
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// Position fix (NED, m) with its covariance (upper triangle xx, xy, xz, yy, yz, zz; m^2).
+    pub fn update_position(&mut self, t_us: u64, pos_ned_m: [f32; 3], cov_ned_m2: [f32; 6]) -> Result<UpdateReport<f32>, NavError> {
+        let mut vals = [0.0f32; 9];
+        vals[..3].copy_from_slice(&pos_ned_m);
+        vals[3..].copy_from_slice(&cov_ned_m2);
+        self.begin_update(&vals)?;
+        let [xx, xy, xz, yy, yz, zz] = cov_ned_m2;
+        let r = Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz);
+        if nalgebra::linalg::Cholesky::new(r).is_none() || !pd::all_finite(&r) {
+            return Err(self.reject_nonfinite());
+        }
+        if !(self.cfg.ukf.adapt.r_cov && self.noise_pos.adapt) {
+            self.noise_pos.r = r;
+        }
+        let nom = self.nom;
+        let z = Vector3::from(pos_ned_m);
+        let res = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| h_position(&nom, dx));
+        self.end_update(KIND_POSITION, t_us, res)
+    }
+}

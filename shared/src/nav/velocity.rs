@@ -1,0 +1,34 @@
+//! Body-frame velocity update (DVL bottom lock, or any velocity measured in FRD).
+//!
+//! `z = (Exp(phi) R)^T (v + dv)`: couples attitude (heading) and velocity errors, which is what
+//! bounds the horizontal drift between heading and position fixes. No lever arm (the DVL is
+//! assumed at the IMU; add `w x l` here if it is not).
+
+use nalgebra::{SVector, UnitQuaternion, Vector3};
+
+use crate::ukf::{Euclidean, UpdateReport};
+
+use super::filter::{NavError, NavFilter, KIND_VELOCITY};
+use super::state::{seg, NominalState, ATT, VEL};
+
+/// Predicted body velocity of an error sigma point.
+pub fn h_body_velocity<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector3<f32> {
+    let q = UnitQuaternion::from_scaled_axis(seg(dx, ATT)) * nom.att_nb;
+    q.inverse_transform_vector(&(nom.vel_ned_mps + seg(dx, VEL)))
+}
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// Velocity in the body frame (FRD, m/s) with a per-axis 1-sigma (`None`: configured/adapted).
+    pub fn update_body_velocity(&mut self, t_us: u64, vel_frd_mps: [f32; 3], sigma_mps: Option<f32>) -> Result<UpdateReport<f32>, NavError> {
+        self.begin_update(&[vel_frd_mps[0], vel_frd_mps[1], vel_frd_mps[2], sigma_mps.unwrap_or(1.0)])?;
+        if let Some(s) = sigma_mps.filter(|s| *s > 0.0) {
+            if !(self.cfg.ukf.adapt.r_cov && self.noise_vel.adapt) {
+                self.noise_vel.r = nalgebra::Matrix3::identity() * (s * s);
+            }
+        }
+        let nom = self.nom;
+        let z = Vector3::from(vel_frd_mps);
+        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_body_velocity(&nom, dx));
+        self.end_update(KIND_VELOCITY, t_us, r)
+    }
+}
