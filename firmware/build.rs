@@ -1,7 +1,8 @@
 //! Puts the selected board's `memory.x` on the linker search path (target builds only).
-//! The STM32F405 layout is the top-level `memory.x`; the QEMU board uses
-//! `firmware/boards/mps2-an386.x`, which mirrors the STM32F405 flash/RAM budget at the addresses
-//! where mps2-an386 has memory, so a firmware that fits in QEMU fits on the chip.
+//! The top-level `memory.x` includes `board-memory.x`, which this script copies from
+//! `firmware/boards/<board>.x`: `stm32f405.x`, or `mps2-an386.x` for QEMU, which mirrors the
+//! STM32F405 flash/RAM budget at the addresses where mps2-an386 has memory, so a firmware that
+//! fits in QEMU fits on the chip.
 use std::{env, fs, path::PathBuf};
 
 fn main() {
@@ -10,12 +11,12 @@ fn main() {
     let src = if env::var_os("CARGO_FEATURE_BOARD_QEMU").is_some() {
         Some(manifest.join("boards/mps2-an386.x"))
     } else if env::var_os("CARGO_FEATURE_BOARD_STM32F4").is_some() {
-        Some(manifest.join("../memory.x"))
+        Some(manifest.join("boards/stm32f405.x"))
     } else {
         None
     };
     if let Some(src) = src {
-        fs::copy(&src, out.join("memory.x")).expect("copy memory.x");
+        fs::copy(&src, out.join("board-memory.x")).expect("copy board memory layout");
         println!("cargo:rustc-link-search={}", out.display());
         println!("cargo:rerun-if-changed={}", src.display());
     }

@@ -1,0 +1,148 @@
+//! Board: STM32F405/F407 sensor head (stm32f4xx-hal). Thin glue around [`subnav_firmware::App`]:
+//! - 168 MHz from an 8 MHz HSE crystal (change `HSE_HZ` for other boards);
+//! - telemetry and commands on USART2 (PA2 TX, PA3 RX) at 460800 baud;
+//! - defmt logs over RTT (probe-rs), panics through panic-probe;
+//! - time from SysTick at 1 kHz plus the sub-tick counter.
+//!
+//! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
+//! scheduled by the tick, a blocking HAL keeps the board file small, and it builds in a fraction
+//! of embassy-stm32's time (matters for CI on two cores). Built in CI; not run there (no board).
+#![no_std]
+#![no_main]
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m_rt::{entry, exception};
+use defmt_rtt as _;
+use panic_probe as _;
+use stm32f4xx_hal::{
+    pac,
+    prelude::*,
+    rcc::Config,
+    serial::{self, Serial},
+};
+use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
+use subnav_shared::wire::Board;
+
+const HSE_HZ: u32 = 8_000_000;
+const CORE_HZ: u32 = 168_000_000;
+const TICK_HZ: u32 = 1_000;
+const RELOAD: u32 = CORE_HZ / TICK_HZ - 1;
+
+static MILLIS: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    MILLIS.fetch_add(1, Ordering::Relaxed);
+}
+
+defmt::timestamp!("{=u64:us}", u64::from(MILLIS.load(Ordering::Relaxed)) * 1000);
+
+struct Clock {
+    last_ms: u32,
+    high: u64,
+}
+
+impl Clock {
+    fn now_us(&mut self) -> u64 {
+        let (ms, cvr) = loop {
+            let a = MILLIS.load(Ordering::Relaxed);
+            let cvr = cortex_m::peripheral::SYST::get_current();
+            if MILLIS.load(Ordering::Relaxed) == a {
+                break (a, cvr);
+            }
+        };
+        if ms < self.last_ms {
+            self.high += 1 << 32;
+        }
+        self.last_ms = ms;
+        let sub_us = u64::from(RELOAD - cvr.min(RELOAD)) / u64::from(CORE_HZ / 1_000_000);
+        (self.high + u64::from(ms)) * 1000 + sub_us
+    }
+}
+
+struct UartSink<TX>(TX);
+
+impl<TX: embedded_hal_nb::serial::Write<u8>> TelemetrySink for UartSink<TX> {
+    fn write_frame(&mut self, frame: &[u8]) -> bool {
+        for &b in frame {
+            if nb::block!(self.0.write(b)).is_err() {
+                return false;
+            }
+        }
+        true
+    }
+}
+
+#[entry]
+fn main() -> ! {
+    let (Some(dp), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+        defmt::panic!("peripherals taken twice");
+    };
+    let mut rcc = dp.RCC.freeze(Config::hse(HSE_HZ.Hz()).sysclk(CORE_HZ.Hz()));
+
+    core.SYST.set_clock_source(SystClkSource::Core);
+    core.SYST.set_reload(RELOAD);
+    core.SYST.clear_current();
+    core.SYST.enable_interrupt();
+    core.SYST.enable_counter();
+
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    let serial: Serial<pac::USART2> = match dp.USART2.serial(
+        (gpioa.pa2, gpioa.pa3),
+        serial::Config::default().baudrate(460_800.bps()),
+        &mut rcc,
+    ) {
+        Ok(s) => s,
+        Err(_) => defmt::panic!("USART2 configuration rejected"),
+    };
+    let (tx, mut rx) = serial.split();
+    let mut sink = UartSink(tx);
+
+    let mut clock = Clock { last_ms: 0, high: 0 };
+    let mut app = App::new(Board::Stm32F405);
+    defmt::info!("board stm32f405");
+    app.boot(clock.now_us(), &mut sink);
+
+    let mut window_start_us = clock.now_us();
+    let mut busy_us: u64 = 0;
+    loop {
+        let wake_us = clock.now_us();
+        let mut buf = [0u8; 32];
+        let mut n = 0;
+        while n < buf.len() {
+            match rx.read() {
+                Ok(b) => {
+                    if let Some(slot) = buf.get_mut(n) {
+                        *slot = b;
+                    }
+                    n += 1;
+                }
+                Err(nb::Error::WouldBlock) => break,
+                // Overrun/framing/noise: the byte is lost; the frame CRC will catch it.
+                Err(nb::Error::Other(_)) => break,
+            }
+        }
+        if let Some(bytes) = buf.get(..n) {
+            if !bytes.is_empty() {
+                app.on_downlink_bytes(wake_us, bytes, &mut sink);
+            }
+        }
+        if app.poll(wake_us, &mut sink) == BoardRequest::Reboot {
+            cortex_m::peripheral::SCB::sys_reset();
+        }
+        let done_us = clock.now_us();
+        busy_us += done_us.saturating_sub(wake_us);
+        let window = done_us.saturating_sub(window_start_us);
+        if window >= 1_000_000 {
+            app.set_cpu_load(u16::try_from(busy_us * 1000 / window).unwrap_or(1000));
+            window_start_us = done_us;
+            busy_us = 0;
+        }
+        // The USART RX interrupt is not enabled yet: wake on the 1 kHz tick and poll (the
+        // hardware FIFO is one byte, so commands above ~8 kbit/s may lose bytes; the CRC and
+        // the command ack make that visible to the host).
+        cortex_m::asm::wfi();
+    }
+}

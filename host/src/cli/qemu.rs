@@ -1,0 +1,61 @@
+//! `subnav qemu`: boot a firmware ELF in QEMU (mps2-an386), print its decoded telemetry and
+//! defmt logs live, and exit with the firmware's exit status.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Result;
+
+use super::{Format, print};
+use crate::link::qemu::{self, QemuConfig, QemuEvent};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The QEMU board firmware ELF (`cargo xtask build --board qemu` prints where it is).
+    #[arg(long)]
+    pub elf: PathBuf,
+    /// Firmware time to run before the board exits, ms (0 = until the firmware stops itself).
+    #[arg(long, default_value_t = 5_000)]
+    pub run_ms: u64,
+    /// Wall-clock limit, seconds.
+    #[arg(long, default_value_t = 120)]
+    pub timeout_s: u64,
+    /// Write the raw uplink bytes to this file (readable by `subnav decode --file`).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// QEMU executable.
+    #[arg(long, default_value = "qemu-system-arm")]
+    pub qemu: PathBuf,
+    /// QEMU -icount shift (virtual ns per instruction = 2^shift).
+    #[arg(long, default_value_t = 3)]
+    pub icount_shift: u8,
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let mut cfg = QemuConfig::new(&args.elf);
+    cfg.qemu = args.qemu;
+    cfg.run_ms = (args.run_ms > 0).then_some(args.run_ms);
+    cfg.timeout = Duration::from_secs(args.timeout_s);
+    cfg.record = args.record;
+    cfg.icount_shift = args.icount_shift;
+    let outcome = qemu::run(&cfg, |event, _| match event {
+        QemuEvent::Link(e) => print::event(&e, format),
+        QemuEvent::Log(l) => print::log(&l, format),
+    })?;
+    print::summary(&outcome.link, 0, format);
+    if !outcome.stderr.trim().is_empty() {
+        eprintln!("qemu: {}", outcome.stderr.trim());
+    }
+    if outcome.timed_out {
+        eprintln!("error: the firmware did not exit within {} s; QEMU was stopped", args.timeout_s);
+        return Ok(ExitCode::FAILURE);
+    }
+    match outcome.exit_code {
+        Some(0) => Ok(ExitCode::SUCCESS),
+        code => {
+            eprintln!("error: the firmware exited with failure (QEMU exit code {code:?})");
+            Ok(ExitCode::FAILURE)
+        }
+    }
+}
