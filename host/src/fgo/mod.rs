@@ -17,6 +17,9 @@
 //! ~200-line LM and the factors here; the graph is a chain (block-tridiagonal information), so
 //! natural ordering has no fill and a fill-reducing ordering is not needed.
 
+/// Re-exported for the peer tests (they build nalgebra values for this API).
+pub use nalgebra;
+
 pub mod factors;
 pub mod gating;
 pub mod log;

@@ -163,6 +163,21 @@ impl Preintegrated {
         Ok(())
     }
 
+    /// Covariance of the component-wise IMU residual (GTSAM 4.3 `residualCovariance()`, the
+    /// ImuFactor's noise): `T P T^T` with `T = diag(dexp(theta), Delta R^T, Delta R^T)`, which
+    /// moves the rotation part to the right-perturbation chart of `Exp(theta)` and the position and
+    /// velocity parts into the frame at the end of the interval, where the residual lives.
+    pub fn residual_cov(&self) -> Matrix9 {
+        let theta = Vector3::new(self.zeta[0], self.zeta[1], self.zeta[2]);
+        let dr_t = so3::exp(&theta).transpose();
+        let mut t = Matrix9::zeros();
+        t.fixed_view_mut::<3, 3>(0, 0).copy_from(&so3::dexp(&theta));
+        t.fixed_view_mut::<3, 3>(3, 3).copy_from(&dr_t);
+        t.fixed_view_mut::<3, 3>(6, 6).copy_from(&dr_t);
+        let c = t * self.cov * t.transpose();
+        (c + c.transpose()) * 0.5
+    }
+
     pub fn delta_rot(&self) -> Matrix3<f64> {
         so3::exp(&Vector3::new(self.zeta[0], self.zeta[1], self.zeta[2]))
     }

@@ -41,8 +41,9 @@ impl Default for SmootherConfig {
     }
 }
 
-/// Integrate the IMU stream over `[t_a, t_b)`, each sample held on `[t_k, t_k+1)`.
-pub fn preintegrate(samples: &[ImuSample], t_a: f64, t_b: f64, pim: &mut Preintegrated) -> Result<(), FgoError> {
+/// The IMU pieces `[acc(3), gyro(3), dt]` covering `[t_a, t_b)`, each sample held on
+/// `[t_k, t_k+1)` (the last one up to `t_b`): what the preintegration of that interval consumes.
+pub fn imu_pieces(samples: &[ImuSample], t_a: f64, t_b: f64) -> Result<Vec<[f64; 7]>, FgoError> {
     if !(t_b > t_a) {
         return Err(FgoError::Input(format!("empty IMU interval [{t_a}, {t_b})")));
     }
@@ -51,14 +52,24 @@ pub fn preintegrate(samples: &[ImuSample], t_a: f64, t_b: f64, pim: &mut Preinte
         Err(0) => return Err(FgoError::Input(format!("no IMU sample at or before t={t_a}"))),
         Err(k) => k - 1,
     };
+    let mut out = Vec::new();
     let mut k = start;
     while k < samples.len() && samples[k].t_s < t_b {
         let s0 = samples[k].t_s.max(t_a);
         let s1 = samples.get(k + 1).map_or(t_b, |n| n.t_s.min(t_b));
         if s1 > s0 {
-            pim.integrate(&Vector3::from(samples[k].acc_mps2), &Vector3::from(samples[k].gyro_radps), s1 - s0)?;
+            let (a, w) = (samples[k].acc_mps2, samples[k].gyro_radps);
+            out.push([a[0], a[1], a[2], w[0], w[1], w[2], s1 - s0]);
         }
         k += 1;
+    }
+    Ok(out)
+}
+
+/// Integrate the IMU stream over `[t_a, t_b)` (see [`imu_pieces`]).
+pub fn preintegrate(samples: &[ImuSample], t_a: f64, t_b: f64, pim: &mut Preintegrated) -> Result<(), FgoError> {
+    for p in imu_pieces(samples, t_a, t_b)? {
+        pim.integrate(&Vector3::new(p[0], p[1], p[2]), &Vector3::new(p[3], p[4], p[5]), p[6])?;
     }
     Ok(())
 }
@@ -103,7 +114,7 @@ impl Smoother {
             ImuBias::new(Vector3::from(p.bias_acc_mps2), Vector3::from(p.bias_gyro_radps)),
         );
         let prior = Factor::Prior(PriorFactor::new(0, mean, p.sigmas)?);
-        let mut s = Self {
+        let s = Self {
             cfg,
             conf,
             imu: Vec::new(),
@@ -118,7 +129,6 @@ impl Smoother {
             latency_s: Vec::new(),
             next_id: 1,
         };
-        s.history.push(Estimate { id: 0, t_s: p.t_s, state: mean });
         Ok(s)
     }
 

@@ -3,7 +3,8 @@
 //! The IMU residual is GTSAM's component-wise ImuFactor error (`ImuFactorErrorMode::ComponentWise`):
 //! with `X_hat_j = predict(X_i, b_i)` from the preintegrated increments,
 //! `r = [Log(R_j^T R_hat_j), R_j^T (p_hat_j - p_j), R_j^T (v_hat_j - v_j)]`, covariance = the
-//! preintegrated covariance. To first order this is spec 002's Forster residual
+//! preintegrated covariance moved into the residual's coordinates
+//! ([`Preintegrated::residual_cov`], as GTSAM 4.3's ImuFactor does). To first order this is spec 002's Forster residual
 //! (`Log(Delta R^T R_i^T R_j)`, `R_i^T (v_j - v_i - g dt) - Delta v`, ...) expressed at node j,
 //! and it is the form GTSAM solves, which the peer test compares against.
 //! Bias random walk: `r = b_j - b_i`, covariance `diag(s_acc^2, s_gyro^2) * dt`.
@@ -33,7 +34,7 @@ impl ImuFactor {
         if pim.delta_t_s <= 0.0 {
             return Err(FgoError::Input(format!("IMU factor {node_i}->{node_j} has no IMU samples")));
         }
-        let noise = Noise::from_fixed(&pim.cov)?;
+        let noise = Noise::from_fixed(&pim.residual_cov())?;
         Ok(Self { node_i, node_j, pim, noise })
     }
 
