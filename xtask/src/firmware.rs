@@ -13,6 +13,8 @@ pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub enum Board {
     Qemu,
     Stm32f4,
+    /// The target benchmark binary (QEMU board glue), see `firmware/src/bin/qemu-bench`.
+    QemuBench,
 }
 
 impl Board {
@@ -20,12 +22,14 @@ impl Board {
         match self {
             Board::Qemu => "qemu",
             Board::Stm32f4 => "stm32f4",
+            Board::QemuBench => "qemu-bench",
         }
     }
     pub fn feature(self) -> &'static str {
         match self {
             Board::Qemu => "board-qemu",
             Board::Stm32f4 => "board-stm32f4",
+            Board::QemuBench => "board-qemu",
         }
     }
 }

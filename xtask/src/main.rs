@@ -6,12 +6,14 @@
 //! - `cargo xtask build` : build the firmware boards (`--board qemu|stm32f4|all`).
 //! - `cargo xtask size`  : flash / RAM per board binary and the no-heap check.
 //! - `cargo xtask setup` : only install the toolchain pieces and the peer venv.
+//! - `cargo xtask bench-target` : instruction counts of the shared core under QEMU `-icount`.
 //!
 //! The firmware toolchain is chosen automatically: a rustup toolchain that already has
 //! `thumbv7em-none-eabihf` (a developer laptop), else Debian's `rustc-web` + `rust-web-src` with
 //! `-Zbuild-std` and `ld.lld` (installed with apt when missing and we are root). Host crates
 //! always build with the `cargo` that runs this xtask.
 
+mod bench;
 mod firmware;
 mod setup;
 mod size;
@@ -40,7 +42,8 @@ fn usage() -> &'static str {
   run [-- ARGS]        build the QEMU firmware and run it under `subnav qemu` (ARGS go to subnav qemu)
   build [--board B]    build firmware: B = qemu | stm32f4 | all (default all)
   size                 flash/RAM report per board and the no-heap check
-  setup                install toolchain pieces and the peer venv only"
+  setup                install toolchain pieces and the peer venv only
+  bench-target         instruction counts per call of shared-core routines on the Cortex-M4F (QEMU -icount)"
 }
 
 fn main() -> ExitCode {
@@ -98,6 +101,12 @@ fn real_main() -> Result<()> {
             run(&mut c)
         }
         "test" => test(rest),
+        "bench-target" => {
+            setup::ensure_system_packages()?;
+            let tc = firmware::Toolchain::detect()?;
+            let elf = tc.build(firmware::Board::QemuBench)?;
+            bench::run(&elf)
+        }
         other => bail!("unknown command {other:?}\n{}", usage()),
     }
 }
