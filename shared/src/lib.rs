@@ -2,6 +2,7 @@
 //! tools both use, so that no math and no message definition is written twice.
 //!
 //! - [`wire`]: telemetry and command messages, postcard + CRC-32 + COBS framing.
+//! - [`bridge`]: sensor-bus transactions carried to the host's chip models under QEMU.
 //! - [`ephemeris`]: solar position from UTC and place, accurate enough for a compass, on an f32 FPU.
 //! - [`compass`]: polarization compass: photodiode counts -> Stokes -> sun vector -> heading.
 //! - [`ukf`]: generic fixed-size (adaptive) unscented Kalman filter.
@@ -11,6 +12,7 @@
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod bridge;
 pub mod compass;
 pub mod ephemeris;
 pub mod nav;
