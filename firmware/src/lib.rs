@@ -7,6 +7,7 @@
 #![forbid(unsafe_code)]
 
 pub mod app;
+pub mod bus_bridge;
 pub mod log;
 pub mod telemetry;
 
