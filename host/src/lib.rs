@@ -3,4 +3,5 @@
 
 pub mod cli;
 pub mod fgo;
+pub mod filter;
 pub mod link;

@@ -20,6 +20,8 @@ enum Command {
     Decode(cli::decode::Args),
     /// Boot a firmware ELF in QEMU (mps2-an386) and print its decoded telemetry and logs live.
     Qemu(cli::qemu::Args),
+    /// The navigation filter on the host: replay a sensor log, simulate a dive, AUKF-vs-UKF Monte Carlo.
+    Filter(cli::filter::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -27,6 +29,7 @@ fn main() -> std::process::ExitCode {
     let result = match args.command {
         Command::Decode(a) => cli::decode::run(a, args.format),
         Command::Qemu(a) => cli::qemu::run(a, args.format),
+        Command::Filter(a) => cli::filter::run(a, args.format),
     };
     match result {
         Ok(code) => code,

@@ -31,6 +31,18 @@ pub struct SensorConfig {
     pub gate_release_after: u32,
     /// Sage-Husa R adaptation for this sensor (if on in the UKF config).
     pub adapt: bool,
+    /// Error states the fading factor may scale on this sensor's updates (bit i = state i).
+    pub fading_mask: u64,
+}
+
+const fn bits(idx: &[usize]) -> u64 {
+    let mut m = 0u64;
+    let mut i = 0;
+    while i < idx.len() {
+        m |= 1u64 << idx[i];
+        i += 1;
+    }
+    m
 }
 
 impl SensorConfig {
@@ -39,6 +51,7 @@ impl SensorConfig {
             .with_gate(self.gate, self.gate_state_max, self.gate_release_after)
             .with_floor(self.sigma_floor * self.sigma_floor);
         n.adapt = self.adapt;
+        n.fading_mask = self.fading_mask;
         n
     }
 }
@@ -111,10 +124,10 @@ impl Default for NavConfig {
             init_sigma_pos_m: 1.0,
             init_sigma_gyro_bias: 0.002,
             init_sigma_accel_bias: 0.05,
-            heading: SensorConfig { sigma: 0.01, sigma_floor: 0.003, gate: chi2_999(1), gate_state_max: 16.0, gate_release_after: 10, adapt: true },
-            depth: SensorConfig { sigma: 0.05, sigma_floor: 0.01, gate: chi2_999(1), gate_state_max: 16.0, gate_release_after: 10, adapt: true },
-            velocity: SensorConfig { sigma: 0.02, sigma_floor: 0.005, gate: chi2_999(3), gate_state_max: 16.0, gate_release_after: 10, adapt: true },
-            position: SensorConfig { sigma: 1.0, sigma_floor: 0.01, gate: chi2_999(3), gate_state_max: 16.0, gate_release_after: 3, adapt: false },
+            heading: SensorConfig { sigma: 0.01, sigma_floor: 0.003, gate: chi2_999(1), gate_state_max: 16.0, gate_release_after: 10, adapt: true, fading_mask: bits(&[0, 1, 2, 9, 10, 11]) },
+            depth: SensorConfig { sigma: 0.05, sigma_floor: 0.01, gate: chi2_999(1), gate_state_max: 16.0, gate_release_after: 10, adapt: true, fading_mask: bits(&[5, 8]) },
+            velocity: SensorConfig { sigma: 0.02, sigma_floor: 0.005, gate: chi2_999(3), gate_state_max: 16.0, gate_release_after: 10, adapt: true, fading_mask: bits(&[0, 1, 2, 3, 4, 5]) },
+            position: SensorConfig { sigma: 1.0, sigma_floor: 0.01, gate: chi2_999(3), gate_state_max: 16.0, gate_release_after: 3, adapt: false, fading_mask: bits(&[3, 4, 5, 6, 7, 8]) },
             aided_timeout_s: 5.0,
         }
     }
@@ -126,8 +139,8 @@ impl NavConfig {
     /// process noise to estimate it; it can be switched on in `ukf.adapt`).
     pub fn adaptive(mut self) -> Self {
         self.ukf.adapt = AdaptConfig {
-            b: 0.98,
-            k0: 50,
+            b: 0.95,
+            k0: 20,
             r_cov: true,
             fading: true,
             fading_s: 4.0,

@@ -133,6 +133,10 @@ pub struct MeasNoise<T: RealField + Copy, const M: usize> {
     /// Whether the Sage-Husa r/R recursion runs for this measurement (when switched on in the
     /// filter's [`AdaptConfig`]); off for measurements that bring their own covariance.
     pub adapt: bool,
+    /// States the fading factor scales for this measurement (bit i = state i; 0 = all). Scaling
+    /// states the measurement does not observe (e.g. position, by a heading) would inflate their
+    /// variance without bound.
+    pub fading_mask: u64,
 }
 
 impl<T: RealField + Copy, const M: usize> MeasNoise<T, M> {
@@ -150,6 +154,7 @@ impl<T: RealField + Copy, const M: usize> MeasNoise<T, M> {
             gate_release_after: 0,
             consecutive_rejects: 0,
             adapt: true,
+            fading_mask: 0,
         }
     }
 

@@ -324,25 +324,10 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             return Err(UkfError::NonFiniteInput);
         }
         let a = self.cfg.adapt;
-        let pts = self.sigma_points();
-        let mut zs = [SVector::<T, M>::zeros(); S];
-        for (o, s) in zs.iter_mut().zip(pts.iter()) {
-            *o = h(s);
-            if !all_finite(o) {
-                self.health.nonfinite_rejects += 1;
-                return Err(UkfError::NonFiniteResult);
-            }
-        }
-        let zhat0 = Z::mean(&zs, &self.w.wm);
-        let zhat = if a.r_mean { Z::add(&zhat0, &noise.r_mean) } else { zhat0 };
-        let mut pzz = SMatrix::<T, M, M>::zeros();
-        let mut pxz = SMatrix::<T, N, M>::zeros();
-        for ((zi, xi), wc) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()) {
-            let rz = Z::residual(zi, &zhat);
-            let rx = X::residual(xi, &self.x);
-            pzz.ger(*wc, &rz, &rz, T::one());
-            pxz.ger(*wc, &rx, &rz, T::one());
-        }
+        let Some((mut zhat0, mut zhat, mut pzz, mut pxz)) = self.measurement_stats::<M, Z, H>(&self.l, noise, &mut h) else {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteResult);
+        };
         let e = Z::residual(z, &zhat);
         let mut s = pzz + noise.r;
         let nis_full = match nis(&e, &s) {
@@ -365,9 +350,13 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             return Ok(UpdateReport { accepted: false, nis: nis_full, nis_gate, lambda: T::one() });
         }
 
-        // Fading factor.
+        // Fading factor: P_{k|k-1} <- Lambda^1/2 P Lambda^1/2, Lambda = lambda on the states of
+        // `noise.fading_mask` (all states when 0), 1 elsewhere. The scaled factor is
+        // Lambda^1/2 L, so the sigma points are re-drawn without a new factorization and the
+        // measurement statistics recomputed exactly.
         let mut lambda = T::one();
         let mut p_prior = self.p;
+        let mut e = e;
         if a.fading {
             let eet = e * e.transpose();
             noise.v = if noise.v_k == 0 { eet } else { (noise.v * a.rho + eet) / (T::one() + a.rho) };
@@ -380,12 +369,19 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                     l = a.lambda_max;
                 }
                 if l > T::one() {
-                    lambda = l;
-                    p_prior *= l;
-                    pzz *= l;
-                    pxz *= l;
-                    s = pzz + noise.r;
-                    self.health.fading_events = self.health.fading_events.wrapping_add(1);
+                    let sq = l.sqrt();
+                    let scale = SVector::<T, N>::from_fn(|i, _| {
+                        if noise.fading_mask == 0 || (i < 64 && noise.fading_mask & (1u64 << i) != 0) { sq } else { T::one() }
+                    });
+                    let l_f = SMatrix::<T, N, N>::from_diagonal(&scale) * self.l;
+                    if let Some(st) = self.measurement_stats::<M, Z, H>(&l_f, noise, &mut h) {
+                        (zhat0, zhat, pzz, pxz) = st;
+                        e = Z::residual(z, &zhat);
+                        p_prior = l_f * l_f.transpose();
+                        s = pzz + noise.r;
+                        lambda = l;
+                        self.health.fading_events = self.health.fading_events.wrapping_add(1);
+                    }
                 }
             }
         }
@@ -412,6 +408,49 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         }
         self.adapt_r(noise, &e, z, &zhat0, &pzz);
         Ok(UpdateReport { accepted: true, nis: nis_full, nis_gate, lambda })
+    }
+
+    /// Sigma points of `(x, L L^T)` through `h`: `(z^ without r, z^, P_zz, P_xz)`; `None` if a
+    /// model output is not finite.
+    #[allow(clippy::type_complexity)]
+    fn measurement_stats<const M: usize, Z, H>(
+        &self,
+        l: &SMatrix<T, N, N>,
+        noise: &MeasNoise<T, M>,
+        h: &mut H,
+    ) -> Option<(SVector<T, M>, SVector<T, M>, SMatrix<T, M, M>, SMatrix<T, N, M>)>
+    where
+        Z: Space<T, M>,
+        H: FnMut(&SVector<T, N>) -> SVector<T, M>,
+    {
+        let mut pts = [self.x; S];
+        for i in 0..N {
+            let d: SVector<T, N> = l.column(i) * self.w.gamma;
+            if let Some(p) = pts.get_mut(1 + i) {
+                *p = X::add(&self.x, &d);
+            }
+            if let Some(p) = pts.get_mut(1 + N + i) {
+                *p = X::add(&self.x, &(-d));
+            }
+        }
+        let mut zs = [SVector::<T, M>::zeros(); S];
+        for (o, s) in zs.iter_mut().zip(pts.iter()) {
+            *o = h(s);
+            if !all_finite(o) {
+                return None;
+            }
+        }
+        let zhat0 = Z::mean(&zs, &self.w.wm);
+        let zhat = if self.cfg.adapt.r_mean { Z::add(&zhat0, &noise.r_mean) } else { zhat0 };
+        let mut pzz = SMatrix::<T, M, M>::zeros();
+        let mut pxz = SMatrix::<T, N, M>::zeros();
+        for ((zi, xi), wc) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()) {
+            let rz = Z::residual(zi, &zhat);
+            let rx = X::residual(xi, &self.x);
+            pzz.ger(*wc, &rz, &rz, T::one());
+            pxz.ger(*wc, &rx, &rz, T::one());
+        }
+        Some((zhat0, zhat, pzz, pxz))
     }
 
     /// Sage-Husa r/R step (spec A5) with the PD safeguard.
