@@ -1,6 +1,9 @@
 //! Run the firmware ELF in QEMU (`mps2-an386`) and stream its telemetry and logs to the host.
 //!
 //! - UART0 (telemetry + commands) is connected to a TCP socket this process listens on.
+//! - UART1 carries the sensor-bus bridge (`subnav_shared::bridge`): each I2C/SPI transaction of
+//!   the firmware is answered by a [`BusHandler`] (the chip models); without one, every
+//!   transaction gets a NACK, as on a bus with nothing attached.
 //! - Semihosting carries the defmt log stream (QEMU's stdout) and the exit status.
 //! - `-icount shift=N,align=off,sleep=off` makes virtual time follow executed instructions:
 //!   the same ELF and options give the same telemetry on any machine at any host speed.
@@ -13,7 +16,78 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use subnav_shared::wire::{self, Downlink, MAX_DOWNLINK_FRAME};
+use subnav_shared::bridge::{BusFault, BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
+use subnav_shared::wire::{self, Decoded, Downlink, FrameDecoder, MAX_DOWNLINK_FRAME};
+
+/// Answers the firmware's bus transactions (the simulated chips behind the QEMU board's buses).
+pub trait BusHandler: Send {
+    fn handle(&mut self, req: &BusRequest) -> BusResponse;
+}
+
+/// No device on any bus.
+pub struct NothingAttached;
+
+impl BusHandler for NothingAttached {
+    fn handle(&mut self, req: &BusRequest) -> BusResponse {
+        BusResponse { seq: req.seq, result: Err(BusFault::Nack) }
+    }
+}
+
+/// Serve bridge requests on `stream` until it closes. Returns the handler and the number of
+/// transactions served (and corrupt request frames seen).
+fn serve_bridge(mut stream: TcpStream, mut handler: Box<dyn BusHandler>) -> (Box<dyn BusHandler>, u64, u64) {
+    let mut dec = FrameDecoder::<MAX_REQUEST_FRAME>::new();
+    let mut buf = [0u8; 4096];
+    let mut out = [0u8; MAX_RESPONSE_FRAME];
+    let (mut served, mut corrupt) = (0u64, 0u64);
+    loop {
+        let n = match stream.read(&mut buf) {
+            Ok(0) | Err(_) => return (handler, served, corrupt),
+            Ok(n) => n,
+        };
+        for &b in &buf[..n] {
+            match dec.push::<BusRequest>(b) {
+                Decoded::Pending => {}
+                Decoded::Corrupt(_) => corrupt += 1,
+                Decoded::Message(req) => {
+                    let resp = handler.handle(&req);
+                    served += 1;
+                    let Ok(frame) = wire::encode(&resp, &mut out) else { continue };
+                    if stream.write_all(frame).is_err() {
+                        return (handler, served, corrupt);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn accept_from(listener: &TcpListener, child: &mut Child, what: &str) -> Result<TcpStream> {
+    let started = Instant::now();
+    loop {
+        match listener.accept() {
+            Ok((s, _)) => {
+                s.set_nonblocking(false)?;
+                s.set_nodelay(true)?;
+                return Ok(s);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if let Some(status) = child.try_wait()? {
+                    let mut err = String::new();
+                    if let Some(mut e) = child.stderr.take() {
+                        let _ = e.read_to_string(&mut err);
+                    }
+                    bail!("QEMU exited before connecting its {what} ({status}): {}", err.trim());
+                }
+                if started.elapsed() > Duration::from_secs(20) {
+                    bail!("QEMU did not connect its {what} within 20 s");
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => return Err(e).with_context(|| format!("accepting the emulator's {what} connection")),
+        }
+    }
+}
 
 use super::defmt_log::{DefmtTable, LogLine};
 use super::uplink::{LinkEvent, LinkStats, UplinkDecoder};
@@ -66,6 +140,9 @@ pub struct QemuOutcome {
     pub link: LinkStats,
     pub log_lines: u64,
     pub log_malformed: u64,
+    /// Bus transactions answered through the bridge, and corrupt request frames.
+    pub bus_transactions: u64,
+    pub bus_corrupt_requests: u64,
     /// Whatever QEMU printed on stderr.
     pub stderr: String,
 }
@@ -133,10 +210,22 @@ impl Drop for KillOnDrop {
 
 /// Boot the ELF in QEMU and call `on_event` for every message and log line, live, until the
 /// firmware exits (or the timeout). `on_event` may send commands through the [`Downlinker`].
-pub fn run(cfg: &QemuConfig, mut on_event: impl FnMut(QemuEvent, &mut Downlinker)) -> Result<QemuOutcome> {
+pub fn run(cfg: &QemuConfig, on_event: impl FnMut(QemuEvent, &mut Downlinker)) -> Result<QemuOutcome> {
+    run_with_bus(cfg, Box::new(NothingAttached), on_event).map(|(o, _)| o)
+}
+
+/// [`run`] with the firmware's sensor buses answered by `bus`; returns the handler afterwards
+/// (e.g. to read the simulator's truth log out of it).
+pub fn run_with_bus(
+    cfg: &QemuConfig,
+    bus: Box<dyn BusHandler>,
+    mut on_event: impl FnMut(QemuEvent, &mut Downlinker),
+) -> Result<(QemuOutcome, Box<dyn BusHandler>)> {
     let table = DefmtTable::from_elf_path(&cfg.elf)?;
     let listener = TcpListener::bind("127.0.0.1:0").context("binding a local port for the emulated UART")?;
     let port = listener.local_addr()?.port();
+    let bus_listener = TcpListener::bind("127.0.0.1:0").context("binding a local port for the sensor-bus bridge")?;
+    let bus_port = bus_listener.local_addr()?.port();
 
     let mut args = vec!["arg=subnav".to_string()];
     if let Some(ms) = cfg.run_ms {
@@ -149,6 +238,8 @@ pub fn run(cfg: &QemuConfig, mut on_event: impl FnMut(QemuEvent, &mut Downlinker
     cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
         .arg("-serial")
         .arg(format!("tcp:127.0.0.1:{port}"))
+        .arg("-serial")
+        .arg(format!("tcp:127.0.0.1:{bus_port}"))
         .arg("-semihosting-config")
         .arg(format!("enable=on,target=native,{}", args.join(",")))
         .arg("-icount")
@@ -163,30 +254,12 @@ pub fn run(cfg: &QemuConfig, mut on_event: impl FnMut(QemuEvent, &mut Downlinker
     })?;
     let mut child = KillOnDrop(child);
 
-    // QEMU connects to us as soon as it has parsed its options.
+    // QEMU connects to us as soon as it has parsed its options (UART0 first, then UART1).
     listener.set_nonblocking(true)?;
-    let started = Instant::now();
-    let stream = loop {
-        match listener.accept() {
-            Ok((s, _)) => break s,
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                if let Some(status) = child.0.try_wait()? {
-                    let mut err = String::new();
-                    if let Some(mut e) = child.0.stderr.take() {
-                        let _ = e.read_to_string(&mut err);
-                    }
-                    bail!("QEMU exited before connecting its UART ({status}): {}", err.trim());
-                }
-                if started.elapsed() > Duration::from_secs(20) {
-                    bail!("QEMU did not connect its UART within 20 s");
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Err(e) => return Err(e).context("accepting the emulator's UART connection"),
-        }
-    };
-    stream.set_nonblocking(false)?;
-    stream.set_nodelay(true)?;
+    bus_listener.set_nonblocking(true)?;
+    let stream = accept_from(&listener, &mut child.0, "UART")?;
+    let bus_stream = accept_from(&bus_listener, &mut child.0, "sensor-bus bridge UART")?;
+    let bridge = std::thread::spawn(move || serve_bridge(bus_stream, bus));
     let mut downlink = Downlinker { stream: stream.try_clone()?, next_seq: 1 };
 
     let (tx, rx) = mpsc::channel();
@@ -253,6 +326,19 @@ pub fn run(cfg: &QemuConfig, mut on_event: impl FnMut(QemuEvent, &mut Downlinker
     } else {
         child.0.wait()?.code()
     };
+    drop(child);
     let stderr = stderr_handle.and_then(|h| h.join().ok()).unwrap_or_default();
-    Ok(QemuOutcome { exit_code, timed_out, link: uplink.stats(), log_lines, log_malformed: logs.malformed, stderr })
+    let (handler, bus_transactions, bus_corrupt_requests) =
+        bridge.join().map_err(|_| anyhow::anyhow!("the sensor-bus bridge thread panicked"))?;
+    let outcome = QemuOutcome {
+        exit_code,
+        timed_out,
+        link: uplink.stats(),
+        log_lines,
+        log_malformed: logs.malformed,
+        bus_transactions,
+        bus_corrupt_requests,
+        stderr,
+    };
+    Ok((outcome, handler))
 }
