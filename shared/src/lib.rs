@@ -7,6 +7,8 @@
 //! - [`compass`]: polarization compass: photodiode counts -> Stokes -> sun vector -> heading.
 //! - [`ukf`]: generic fixed-size (adaptive) unscented Kalman filter.
 //! - [`nav`]: the sensor head's INS error-state navigation filter and its per-sensor updates.
+//! - [`head`]: the sensor head's configuration: rates, compass units, sensor grades (read by the
+//!   firmware's default tuning and by the host simulator).
 //!
 //! Frames and units are documented once, in [`wire::messages`].
 #![cfg_attr(not(feature = "std"), no_std)]
@@ -15,6 +17,7 @@
 pub mod bridge;
 pub mod compass;
 pub mod ephemeris;
+pub mod head;
 pub mod nav;
 pub mod ukf;
 pub mod wire;

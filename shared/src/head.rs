@@ -1,0 +1,130 @@
+//! The sensor head's configuration in one named place: task rates, the polarization units'
+//! geometry and nominal calibration, and the sensor grades (noise densities, bias stabilities).
+//! The firmware's default filter tuning and the host simulator both read these, so changing a
+//! grade changes both. (To evaluate a mis-tuned filter, the simulator scales its own copy.)
+//!
+//! Sources: ICM-42688-P datasheet (rate noise 0.0028 dps/sqrt(Hz), accel noise 70 ug/sqrt(Hz));
+//! MS5837-30BA datasheet (resolution 0.2 mbar at OSR 8192). Bias random walks and the photodiode
+//! front end are our assumptions for a small MEMS head and are marked so.
+
+use nalgebra::UnitQuaternion;
+
+use crate::compass::{CompassConfig, NoiseModel, UnitModel, unit::ring_geometry};
+use crate::nav::NavConfig;
+
+/// Task rates (Hz).
+pub const IMU_RATE_HZ: u32 = 200;
+pub const POLARIZATION_RATE_HZ: u32 = 10;
+pub const DEPTH_RATE_HZ: u32 = 10;
+
+/// Polarization units on the head: a ring around the body z axis, looking up.
+pub const POLARIZATION_UNITS: usize = 4;
+/// Elevation of each unit's viewing direction above the body's horizontal plane.
+pub const POLARIZATION_UNIT_ELEVATION_RAD: f32 = 45.0 * core::f32::consts::PI / 180.0;
+/// Nominal photodiode gain: counts per unit of (normalised) radiance.
+pub const POLARIZATION_GAIN_COUNTS: f32 = 20_000.0;
+pub const POLARIZATION_OFFSET_COUNTS: f32 = 50.0;
+/// Polarizer extinction ratio (film polarizers: a few hundred).
+pub const POLARIZER_EXTINCTION_RATIO: f32 = 300.0;
+
+/// IMU grade (continuous-time noise densities and random walks).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuGrade {
+    /// Gyro angle random walk (rad/s/sqrt(Hz) = rad/sqrt(s)).
+    pub gyro_arw: f32,
+    /// Gyro bias random walk (rad/s/sqrt(s)) (assumed).
+    pub gyro_bias_rw: f32,
+    /// Gyro turn-on bias 1-sigma (rad/s) (assumed).
+    pub gyro_bias_sigma: f32,
+    /// Accelerometer velocity random walk (m/s^2/sqrt(Hz)).
+    pub accel_vrw: f32,
+    /// Accelerometer bias random walk (m/s^2/sqrt(s)) (assumed).
+    pub accel_bias_rw: f32,
+    /// Accelerometer turn-on bias 1-sigma (m/s^2) (assumed).
+    pub accel_bias_sigma: f32,
+}
+
+/// TDK ICM-42688-P (datasheet noise densities; bias figures assumed).
+pub const IMU_ICM42688P: ImuGrade = ImuGrade {
+    gyro_arw: 0.0028 * core::f32::consts::PI / 180.0,
+    gyro_bias_rw: 2e-5,
+    gyro_bias_sigma: 0.5 * core::f32::consts::PI / 180.0,
+    accel_vrw: 70e-6 * 9.806_65,
+    accel_bias_rw: 1e-4,
+    accel_bias_sigma: 0.02,
+};
+
+/// Pressure / depth sensor grade.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthGrade {
+    /// 1-sigma pressure noise per reading (Pa).
+    pub pressure_sigma_pa: f32,
+}
+
+/// TE MS5837-30BA at OSR 8192: 0.2 mbar resolution.
+pub const DEPTH_MS5837_30BA: DepthGrade = DepthGrade { pressure_sigma_pa: 20.0 };
+
+/// Photodiode front end (assumed: photodiode + transimpedance amplifier + ADS1115).
+pub const PHOTODIODE_NOISE: NoiseModel = NoiseModel { read_sigma_counts: 3.0, electrons_per_count: 100.0, saturation_counts: 32_000 };
+
+/// The polarization units with nominal calibration.
+pub fn polarization_units() -> [Option<UnitModel>; POLARIZATION_UNITS] {
+    core::array::from_fn(|i| {
+        let (view, axis0) = ring_geometry(i, POLARIZATION_UNITS, POLARIZATION_UNIT_ELEVATION_RAD);
+        UnitModel::nominal(view, axis0, POLARIZATION_GAIN_COUNTS, POLARIZATION_OFFSET_COUNTS, POLARIZER_EXTINCTION_RATIO, PHOTODIODE_NOISE).ok()
+    })
+}
+
+/// The compass settings of the head.
+pub fn compass_config() -> CompassConfig {
+    CompassConfig::default()
+}
+
+/// The navigation filter's default tuning, from the grades above.
+pub fn nav_config() -> NavConfig {
+    let mut cfg = NavConfig::default();
+    cfg.imu_rate_hz = IMU_RATE_HZ as f32;
+    cfg.gyro_arw = IMU_ICM42688P.gyro_arw;
+    cfg.gyro_bias_rw = IMU_ICM42688P.gyro_bias_rw;
+    cfg.accel_vrw = IMU_ICM42688P.accel_vrw;
+    cfg.accel_bias_rw = IMU_ICM42688P.accel_bias_rw;
+    cfg.init_sigma_gyro_bias = IMU_ICM42688P.gyro_bias_sigma;
+    cfg.init_sigma_accel_bias = IMU_ICM42688P.accel_bias_sigma;
+    cfg
+}
+
+/// Roll and pitch (rad) from a mean specific force at rest (body FRD: level reads [0, 0, -g]).
+pub fn level_from_accel(f: [f32; 3]) -> (f32, f32) {
+    let roll = libm::atan2f(-f[1], -f[2]);
+    let pitch = libm::atan2f(f[0], libm::sqrtf(f[1] * f[1] + f[2] * f[2]));
+    (roll, pitch)
+}
+
+/// Body -> NED attitude from roll, pitch, yaw (rad, ZYX).
+pub fn attitude(roll: f32, pitch: f32, yaw: f32) -> UnitQuaternion<f32> {
+    UnitQuaternion::from_euler_angles(roll, pitch, yaw)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn units_are_valid_and_look_up() {
+        for u in polarization_units() {
+            let u = u.expect("nominal unit model");
+            assert!(u.view_body[2] < -0.5, "units look up (body z is down)");
+        }
+        let init = crate::nav::NavInit { t_us: 0, att_nb: attitude(0.0, 0.0, 0.0), vel_ned_mps: nalgebra::Vector3::zeros(), pos_ned_m: nalgebra::Vector3::zeros() };
+        assert!(crate::nav::NavFilter15::new(nav_config(), init).is_ok(), "default tuning must be a valid config");
+    }
+
+    #[test]
+    fn level_from_accel_recovers_tilt() {
+        let q = attitude(0.1, -0.2, 1.0);
+        // specific force at rest: f_b = R_bn^T (-g_n), g_n = [0, 0, g]
+        let f = q.inverse() * nalgebra::Vector3::new(0.0, 0.0, -9.81);
+        let (r, p) = level_from_accel([f.x, f.y, f.z]);
+        assert!((r - 0.1).abs() < 1e-5 && (p + 0.2).abs() < 1e-5, "{r} {p}");
+    }
+}
