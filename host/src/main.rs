@@ -16,6 +16,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Factor-graph INS/DVL/USBL navigation with abnormal-observation handling (replay, simulate, Monte Carlo).
+    Fgo(cli::fgo::Args),
     /// Decode telemetry (and defmt logs) from a file, a TCP socket or a serial port.
     Decode(cli::decode::Args),
     /// Boot a firmware ELF in QEMU (mps2-an386) and print its decoded telemetry and logs live.
@@ -28,6 +30,7 @@ fn main() -> std::process::ExitCode {
     let args = Cli::parse();
     let result = match args.command {
         Command::Decode(a) => cli::decode::run(a, args.format),
+        Command::Fgo(a) => cli::fgo::run(a, args.format),
         Command::Qemu(a) => cli::qemu::run(a, args.format),
         Command::Filter(a) => cli::filter::run(a, args.format),
     };

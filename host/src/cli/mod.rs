@@ -2,6 +2,7 @@
 //! `run(args, format) -> anyhow::Result<ExitCode>`.
 
 pub mod decode;
+pub mod fgo;
 pub mod filter;
 pub mod print;
 pub mod qemu;

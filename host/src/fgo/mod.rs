@@ -23,12 +23,14 @@ pub use nalgebra;
 pub mod factors;
 pub mod gating;
 pub mod log;
+pub mod montecarlo;
 pub mod preintegration;
 pub mod sim;
 pub mod smoother;
 pub mod so3;
 pub mod solver;
 pub mod state;
+pub mod ukf_baseline;
 
 /// Errors of this module: bad input data or a numeric failure, never a panic.
 #[derive(Debug, Clone, PartialEq)]

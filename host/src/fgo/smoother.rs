@@ -37,7 +37,7 @@ pub struct SmootherConfig {
 
 impl Default for SmootherConfig {
     fn default() -> Self {
-        Self { lag_s: 10.0, gating: GatingConfig::default(), iterations: 4 }
+        Self { lag_s: 6.0, gating: GatingConfig::default(), iterations: 2 }
     }
 }
 

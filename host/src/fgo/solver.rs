@@ -5,11 +5,9 @@
 //! the same optimum when run to tight tolerances. Also gives marginal covariances of single nodes
 //! (block of the inverse information) for the gating test.
 
-use std::collections::BTreeMap;
-
 use nalgebra::{DMatrix, DVector, SMatrix};
 use nalgebra_sparse::factorization::CscCholesky;
-use nalgebra_sparse::{CooMatrix, CscMatrix};
+use nalgebra_sparse::CscMatrix;
 
 use super::factors::Factor;
 use super::state::{NodeState, Tangent};
@@ -58,40 +56,120 @@ pub fn total_cost(nodes: &[NodeState], factors: &[Factor]) -> Result<f64, FgoErr
     Ok(c)
 }
 
-/// Gauss-Newton normal equations: information `H = J^T J` (sparse, full symmetric) and `g = J^T r`.
+/// Block sparsity of the information matrix of a factor set (15x15 blocks), with the CSC
+/// pattern built once so that every LM iteration only refills values and refactors numerically.
+struct System {
+    n: usize,
+    /// (row block, col block) -> index into `blocks`
+    index: std::collections::HashMap<(usize, usize), usize>,
+    /// value offset in the CSC value array of each block's (0, 0) entry, and its column stride
+    block_offset: Vec<usize>,
+    col_ptr: Vec<usize>,
+    pattern: CscMatrix<f64>,
+    diag_value_pos: Vec<usize>,
+}
+
+impl System {
+    fn new(n: usize, factors: &[Factor]) -> Result<Self, FgoError> {
+        let mut cols: Vec<Vec<usize>> = (0..n).map(|i| vec![i]).collect();
+        for f in factors {
+            let keys = f.nodes();
+            for a in &keys {
+                if *a >= n {
+                    return Err(FgoError::Input(format!("factor refers to missing node {a}")));
+                }
+                for b in &keys {
+                    cols[*b].push(*a);
+                }
+            }
+        }
+        for c in &mut cols {
+            c.sort_unstable();
+            c.dedup();
+        }
+        let mut col_ptr = Vec::with_capacity(15 * n + 1);
+        let mut row_idx = Vec::new();
+        let mut index = std::collections::HashMap::new();
+        let mut block_offset = Vec::new();
+        let mut diag_value_pos = Vec::with_capacity(15 * n);
+        col_ptr.push(0);
+        for (b, rows) in cols.iter().enumerate() {
+            let col_len = rows.len() * 15;
+            for c in 0..15 {
+                let base = row_idx.len();
+                for (k, a) in rows.iter().enumerate() {
+                    if c == 0 {
+                        index.insert((*a, b), block_offset.len());
+                        block_offset.push(base + 15 * k);
+                    }
+                    if *a == b {
+                        diag_value_pos.push(base + 15 * k + c);
+                    }
+                    for r in 0..15 {
+                        row_idx.push(15 * a + r);
+                    }
+                }
+                debug_assert_eq!(row_idx.len() - base, col_len);
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let nnz = row_idx.len();
+        let pattern = CscMatrix::try_from_csc_data(15 * n, 15 * n, col_ptr.clone(), row_idx, vec![0.0; nnz])
+            .map_err(|e| FgoError::Numeric(format!("sparsity pattern: {e}")))?;
+        Ok(Self { n, index, block_offset, col_ptr, pattern, diag_value_pos })
+    }
+
+    /// Fill `J^T J` (values, CSC order) and `J^T r`.
+    fn fill(&self, nodes: &[NodeState], factors: &[Factor], values: &mut [f64], g: &mut DVector<f64>) -> Result<(), FgoError> {
+        values.iter_mut().for_each(|v| *v = 0.0);
+        g.fill(0.0);
+        for f in factors {
+            let keys = f.nodes();
+            let lin = f.linearize(&states_of(nodes, f)?);
+            if !lin.residual.iter().all(|x| x.is_finite()) || !lin.jacobians.iter().all(|j| j.iter().all(|x| x.is_finite())) {
+                return Err(FgoError::Numeric(format!("factor on nodes {keys:?} evaluated to NaN/inf")));
+            }
+            for (a, ja) in keys.iter().zip(lin.jacobians.iter()) {
+                let mut seg = g.rows_mut(15 * a, 15);
+                seg += ja.transpose() * &lin.residual;
+                for (b, jb) in keys.iter().zip(lin.jacobians.iter()) {
+                    let hab = ja.transpose() * jb;
+                    let id = self.index[&(*a, *b)];
+                    let off = self.block_offset[id];
+                    let stride = self.col_ptr[15 * b + 1] - self.col_ptr[15 * b];
+                    for c in 0..15 {
+                        let col = &mut values[off + c * stride..off + c * stride + 15];
+                        for (r, v) in col.iter_mut().enumerate() {
+                            *v += hab[(r, c)];
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn matrix(&self, values: &[f64], damping: f64) -> CscMatrix<f64> {
+        let mut m = self.pattern.clone();
+        m.values_mut().copy_from_slice(values);
+        if damping != 0.0 {
+            let v = m.values_mut();
+            for p in &self.diag_value_pos {
+                v[*p] += damping;
+            }
+        }
+        m
+    }
+}
+
+/// Gauss-Newton normal equations: information `H = J^T J + damping I` (sparse, full symmetric)
+/// and `g = J^T r`.
 pub fn normal_equations(nodes: &[NodeState], factors: &[Factor], damping: f64) -> Result<(CscMatrix<f64>, DVector<f64>), FgoError> {
-    let n = nodes.len();
-    let mut blocks: BTreeMap<(usize, usize), Matrix15> = BTreeMap::new();
-    let mut g = DVector::zeros(15 * n);
-    for i in 0..n {
-        blocks.insert((i, i), Matrix15::identity() * damping);
-    }
-    for f in factors {
-        let keys = f.nodes();
-        let lin = f.linearize(&states_of(nodes, f)?);
-        if !lin.residual.iter().all(|x| x.is_finite()) || !lin.jacobians.iter().all(|j| j.iter().all(|x| x.is_finite())) {
-            return Err(FgoError::Numeric(format!("factor on nodes {keys:?} evaluated to NaN/inf")));
-        }
-        for (a, ja) in keys.iter().zip(lin.jacobians.iter()) {
-            let ga = ja.transpose() * &lin.residual;
-            let mut seg = g.rows_mut(15 * a, 15);
-            seg += ga;
-            for (b, jb) in keys.iter().zip(lin.jacobians.iter()) {
-                let hab: DMatrix<f64> = ja.transpose() * jb;
-                let blk = blocks.entry((*a, *b)).or_insert_with(Matrix15::zeros);
-                *blk += Matrix15::from_iterator(hab.iter().copied());
-            }
-        }
-    }
-    let mut coo = CooMatrix::new(15 * n, 15 * n);
-    for ((a, b), blk) in &blocks {
-        for c in 0..15 {
-            for r in 0..15 {
-                coo.push(15 * a + r, 15 * b + c, blk[(r, c)]);
-            }
-        }
-    }
-    Ok((CscMatrix::from(&coo), g))
+    let sys = System::new(nodes.len(), factors)?;
+    let mut values = vec![0.0; sys.pattern.nnz()];
+    let mut g = DVector::zeros(15 * sys.n);
+    sys.fill(nodes, factors, &mut values, &mut g)?;
+    Ok((sys.matrix(&values, damping), g))
 }
 
 fn factor(h: &CscMatrix<f64>) -> Result<CscCholesky<f64>, FgoError> {
@@ -103,6 +181,10 @@ pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -
     if nodes.iter().any(|x| !x.is_finite()) {
         return Err(FgoError::Input("initial node state contains NaN/inf".into()));
     }
+    let sys = System::new(nodes.len(), factors)?;
+    let mut values = vec![0.0; sys.pattern.nnz()];
+    let mut g = DVector::zeros(15 * sys.n);
+    let mut chol: Option<CscCholesky<f64>> = None;
     let initial_cost = total_cost(nodes, factors)?;
     let mut cost = initial_cost;
     let mut lambda = opts.lambda_initial;
@@ -110,19 +192,26 @@ pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -
     let mut iterations = 0;
     while iterations < opts.max_iterations {
         iterations += 1;
-        let (h, g) = normal_equations(nodes, factors, 0.0)?;
+        sys.fill(nodes, factors, &mut values, &mut g)?;
         let mut accepted = false;
         let mut step_small = false;
         while lambda <= opts.lambda_max {
-            let hd = add_diagonal(&h, lambda);
-            let chol = match CscCholesky::factor(&hd) {
-                Ok(c) => c,
-                Err(_) => {
-                    lambda *= 10.0;
-                    continue;
-                }
+            let hd = sys.matrix(&values, lambda);
+            let ok = match chol.as_mut() {
+                Some(c) => c.refactor(hd.values()).is_ok(),
+                None => match CscCholesky::factor(&hd) {
+                    Ok(c) => {
+                        chol = Some(c);
+                        true
+                    }
+                    Err(_) => false,
+                },
             };
-            let dx = -chol.solve(&g);
+            let Some(c) = chol.as_ref().filter(|_| ok) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let dx = -c.solve(&g);
             let dx = dx.column(0);
             let candidate: Vec<NodeState> = nodes
                 .iter()
@@ -151,18 +240,6 @@ pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -
         }
     }
     Ok(LmReport { iterations, initial_cost, final_cost: cost, converged })
-}
-
-fn add_diagonal(h: &CscMatrix<f64>, lambda: f64) -> CscMatrix<f64> {
-    let mut out = h.clone();
-    for c in 0..out.ncols() {
-        let mut col = out.col_mut(c);
-        let (rows, vals) = col.rows_and_values_mut();
-        if let Ok(k) = rows.binary_search(&c) {
-            vals[k] += lambda;
-        }
-    }
-    out
 }
 
 /// Marginal covariance (15x15) of node `k` given all factors, at the current estimate.
