@@ -1,13 +1,23 @@
 //! The application: fixed-rate scheduling of the sensor-head tasks, downlink command handling
-//! and telemetry. The board calls [`App::boot`] once, then [`App::poll`] whenever it wakes
-//! (timer tick or received bytes) with its monotonic time.
+//! and telemetry. The board calls [`App::boot`] once, then on every tick
+//! [`App::sensor_tick`] (when it has sensors) and [`App::poll`], with its monotonic time.
+//!
+//! Rates: IMU 200 Hz, polarization 10 Hz, depth 10 Hz (`subnav_shared::head`), navigation
+//! telemetry `nav_rate_hz` (configurable 1..=50), health 1 Hz. A failed read is counted and
+//! reported as a fault (rate-limited) and the estimator goes on with the other sensors.
 
 use subnav_shared::wire::{
     Board, Command, CommandAck, ConfigItem, Decoded, Downlink, Fault, FaultKind, FaultSource,
-    FilterHealth, FrameDecoder, MAX_DOWNLINK_FRAME, NavMode, NavSolution, Refusal, Uplink,
+    FilterHealth, FrameDecoder, MAX_DOWNLINK_FRAME, Refusal, Uplink,
     boot_message,
 };
 
+use subnav_shared::ephemeris::Observer;
+use subnav_shared::head;
+use subnav_shared::wire::{RawSample, PolarizationSample};
+
+use crate::estimator::Estimator;
+use crate::sensors::{FaultLog, SensorFault, SensorSuite};
 use crate::telemetry::{Telemetry, TelemetrySink};
 use crate::{FIRMWARE_VERSION, info, warn};
 
@@ -71,6 +81,11 @@ pub struct App {
     reported_drops: u32,
     cpu_load_permille: u16,
     request: BoardRequest,
+    estimator: Estimator,
+    imu_task: Periodic,
+    polarization_task: Periodic,
+    depth_task: Periodic,
+    faults: FaultLog,
 }
 
 impl App {
@@ -88,6 +103,81 @@ impl App {
             reported_drops: 0,
             cpu_load_permille: 0,
             request: BoardRequest::None,
+            estimator: Estimator::default(),
+            imu_task: Periodic::new(1_000_000 / head::IMU_RATE_HZ as u64),
+            polarization_task: Periodic::new(1_000_000 / head::POLARIZATION_RATE_HZ as u64),
+            depth_task: Periodic::new(1_000_000 / head::DEPTH_RATE_HZ as u64),
+            faults: FaultLog::new(),
+        }
+    }
+
+    /// The estimator (for inspection in tests and by boards).
+    pub fn estimator(&self) -> &Estimator {
+        &self.estimator
+    }
+
+    /// UTC now, if the host has set the time.
+    fn utc_unix_us(&self, t_us: u64) -> Option<i64> {
+        self.utc_offset_us.and_then(|o| i64::try_from(t_us).ok().map(|t| t.saturating_add(o)))
+    }
+
+    fn observer(&self) -> Option<Observer> {
+        self.config.origin.map(|(lat, lon, alt)| Observer { lat_rad: lat as f32, lon_rad: lon as f32, height_m: alt })
+    }
+
+    fn fault(&mut self, t_us: u64, f: SensorFault, sink: &mut impl TelemetrySink) {
+        if let Some(count) = self.faults.record(t_us, f) {
+            warn!("sensor fault at {=u64} us ({=u32} so far)", t_us, count);
+            self.telemetry.send(&Uplink::Fault(Fault { t_us, source: f.source, kind: f.kind, count }), sink);
+        }
+    }
+
+    /// Read the sensors that are due at `now_us` and run the estimator on them.
+    pub fn sensor_tick(&mut self, now_us: u64, sensors: &mut impl SensorSuite, sink: &mut impl TelemetrySink) {
+        if self.imu_task.due(now_us) {
+            match sensors.read_imu(now_us) {
+                Ok(s) => {
+                    if self.config.stream_raw {
+                        self.telemetry.send(&Uplink::Raw(RawSample::Imu(s)), sink);
+                    }
+                    if self.estimator.on_imu(&s).is_err() {
+                        self.fault(now_us, SensorFault { source: FaultSource::Imu, kind: FaultKind::NonFinite }, sink);
+                    }
+                }
+                Err(f) => self.fault(now_us, f, sink),
+            }
+        }
+        if self.depth_task.due(now_us) {
+            match sensors.read_depth(now_us, self.config.water_density_kgm3) {
+                Ok(d) => {
+                    if self.config.stream_raw {
+                        self.telemetry.send(&Uplink::Raw(RawSample::Depth(d)), sink);
+                    }
+                    if self.estimator.on_depth(now_us, d.depth_m).is_err() {
+                        self.fault(now_us, SensorFault { source: FaultSource::Depth, kind: FaultKind::NonFinite }, sink);
+                    }
+                }
+                Err(f) => self.fault(now_us, f, sink),
+            }
+        }
+        if self.polarization_task.due(now_us) {
+            let mut readings: heapless::Vec<(usize, [i16; 4]), { head::POLARIZATION_UNITS }> = heapless::Vec::new();
+            for unit in 0..head::POLARIZATION_UNITS {
+                match sensors.read_polarization(now_us, unit as u8) {
+                    Ok(counts) => {
+                        if self.config.stream_raw {
+                            let raw = PolarizationSample { t_us: now_us, unit: unit as u8, counts };
+                            self.telemetry.send(&Uplink::Raw(RawSample::Polarization(raw)), sink);
+                        }
+                        let _ = readings.push((unit, counts));
+                    }
+                    Err(f) => self.fault(now_us, f, sink),
+                }
+            }
+            let utc = self.utc_unix_us(now_us);
+            let observer = self.observer();
+            let report = self.estimator.on_polarization(now_us, &readings, utc, observer);
+            self.telemetry.send(&Uplink::Compass(report), sink);
         }
     }
 
@@ -122,32 +212,13 @@ impl App {
     /// Run whatever tasks are due at `now_us`. Returns what the board must do next.
     pub fn poll(&mut self, now_us: u64, sink: &mut impl TelemetrySink) -> BoardRequest {
         if self.nav_task.due(now_us) {
-            // No estimator is wired in yet: the solution says so (mode Uninitialised, infinite
-            // sigmas) instead of pretending to navigate.
-            let nav = NavSolution {
-                t_us: now_us,
-                mode: NavMode::Uninitialised,
-                pos_ned_m: [0.0; 3],
-                vel_ned_mps: [0.0; 3],
-                att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
-                sigma_pos_m: [f32::INFINITY; 3],
-                sigma_vel_mps: [f32::INFINITY; 3],
-                sigma_att_rad: [f32::INFINITY; 3],
-            };
+            let nav = self.estimator.solution(now_us);
             self.telemetry.send(&Uplink::Nav(nav), sink);
         }
         if self.health_task.due(now_us) {
-            let health = FilterHealth {
-                t_us: now_us,
-                nis: [f32::NAN; 4],
-                lambda: 1.0,
-                q_diag: [0.0; 5],
-                r_diag: [0.0; 4],
-                pd_repairs: 0,
-                gate_rejects: 0,
-                nonfinite_rejects: 0,
-                cpu_load_permille: self.cpu_load_permille,
-            };
+            let mut health: FilterHealth = self.estimator.health(now_us);
+            health.t_us = now_us;
+            health.cpu_load_permille = self.cpu_load_permille;
             self.telemetry.send(&Uplink::Health(health), sink);
             info!("t={=u64} ms cpu={=u16} permille sent={=u32}", now_us / 1000, self.cpu_load_permille, self.telemetry.sent);
         }
@@ -170,6 +241,22 @@ impl App {
     }
 
     fn apply(&mut self, command: Command) -> Result<(), Refusal> {
+        let command = match command {
+            Command::PositionFix { t_us, pos_ned_m, cov_ned_m2 } => {
+                if !pos_ned_m.iter().chain(cov_ned_m2.iter()).all(|v| v.is_finite()) {
+                    return Err(Refusal::NotFinite);
+                }
+                if !covariance_is_pd(&cov_ned_m2) {
+                    return Err(Refusal::NotPositiveDefinite);
+                }
+                return self.estimator.on_position_fix(t_us, pos_ned_m, cov_ned_m2).map_err(|_| Refusal::Busy);
+            }
+            Command::ResetFilter => {
+                self.estimator.reset();
+                return Ok(());
+            }
+            other => other,
+        };
         match command {
             Command::SetConfig(item) => self.apply_config(item),
             Command::SetTime { t_us, utc_unix_us } => {
@@ -181,17 +268,7 @@ impl App {
                 self.utc_offset_us = Some(utc_unix_us - t);
                 Ok(())
             }
-            Command::PositionFix { pos_ned_m, cov_ned_m2, .. } => {
-                if !pos_ned_m.iter().chain(cov_ned_m2.iter()).all(|v| v.is_finite()) {
-                    return Err(Refusal::NotFinite);
-                }
-                if !covariance_is_pd(&cov_ned_m2) {
-                    return Err(Refusal::NotPositiveDefinite);
-                }
-                // Valid, but this build has no estimator to apply it to.
-                Err(Refusal::NotSupported)
-            }
-            Command::ResetFilter => Ok(()),
+            Command::PositionFix { .. } | Command::ResetFilter => Ok(()), // handled above
             Command::Reboot => {
                 self.request = BoardRequest::Reboot;
                 Ok(())
@@ -245,7 +322,7 @@ fn covariance_is_pd(c: &[f32; 6]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use subnav_shared::wire::{self, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME};
+    use subnav_shared::wire::{self, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, NavSolution};
 
     fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
         let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
@@ -327,6 +404,56 @@ mod tests {
         app.poll(100_000, &mut out);
         let msgs = decode_all(&out);
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { kind: FaultKind::TelemetryDropped, .. }))));
+    }
+
+    /// A head at rest at 12 m with polarization unit 2 NACKing and every 50th IMU read timing out.
+    struct StillHead {
+        imu_reads: u32,
+    }
+
+    impl SensorSuite for StillHead {
+        fn read_imu(&mut self, t_us: u64) -> Result<subnav_shared::wire::ImuSample, SensorFault> {
+            self.imu_reads += 1;
+            if self.imu_reads % 50 == 0 {
+                return Err(SensorFault { source: FaultSource::Imu, kind: FaultKind::BusTimeout });
+            }
+            Ok(subnav_shared::wire::ImuSample { t_us, gyro_radps: [0.0; 3], accel_mps2: [0.0, 0.0, -9.81], temp_c: 15.0 })
+        }
+        fn read_polarization(&mut self, _t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
+            if unit == 2 {
+                return Err(SensorFault { source: FaultSource::Polarization { unit }, kind: FaultKind::BusNack });
+            }
+            Ok([1000, 1000, 1000, 1000])
+        }
+        fn read_depth(&mut self, t_us: u64, _rho: f32) -> Result<subnav_shared::wire::DepthSample, SensorFault> {
+            Ok(subnav_shared::wire::DepthSample { t_us, pressure_pa: 101_325.0 + 12.0 * 1025.0 * 9.81, temp_c: 10.0, depth_m: 12.0 })
+        }
+    }
+
+    #[test]
+    fn sensors_feed_the_estimator_and_faults_are_reported_without_stopping_it() {
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut head = StillHead { imu_reads: 0 };
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        for ms in 0..=15_000u64 {
+            app.sensor_tick(ms * 1000, &mut head, &mut out);
+            app.poll(ms * 1000, &mut out);
+        }
+        let msgs = decode_all(&out);
+        let faults: Vec<&Fault> = msgs.iter().filter_map(|m| if let Uplink::Fault(f) = m { Some(f) } else { None }).collect();
+        assert!(faults.iter().any(|f| f.source == FaultSource::Polarization { unit: 2 } && f.kind == FaultKind::BusNack));
+        assert!(faults.iter().any(|f| f.source == FaultSource::Imu && f.kind == FaultKind::BusTimeout));
+        assert!(faults.len() < 100, "faults must be rate-limited, got {}", faults.len());
+        let navs: Vec<&NavSolution> = msgs.iter().filter_map(|m| if let Uplink::Nav(n) = m { Some(n) } else { None }).collect();
+        let last = navs.last().unwrap();
+        assert_eq!(last.mode, subnav_shared::wire::NavMode::Aided);
+        assert!(navs.iter().all(|n| n.pos_ned_m.iter().chain(n.vel_ned_mps.iter()).chain(n.att_nb_wxyz.iter()).all(|v| v.is_finite())));
+        assert!((last.pos_ned_m[2] - 12.0).abs() < 0.2, "{:?}", last.pos_ned_m);
+        // Unpolarized light gives no compass fix, with a reason.
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Compass(c) if c.heading_rad.is_none() && c.no_fix_reason != 0)));
+        let imu_raw = msgs.iter().filter(|m| matches!(m, Uplink::Raw(RawSample::Imu(_)))).count();
+        assert!((2900..=3001).contains(&imu_raw), "raw IMU at 200 Hz minus failed reads: {imu_raw}");
     }
 
     #[test]

@@ -8,7 +8,9 @@
 
 pub mod app;
 pub mod bus_bridge;
+pub mod estimator;
 pub mod log;
+pub mod sensors;
 pub mod telemetry;
 
 pub use app::{App, AppConfig};
