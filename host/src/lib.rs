@@ -1,6 +1,7 @@
 //! subnav host library: the telemetry link (decode, QEMU runs) and the host-side methods.
 //! The `subnav` binary (`src/main.rs`) is a thin clap front end over [`cli`].
 
+pub mod bathy;
 pub mod cli;
 pub mod fgo;
 pub mod filter;

@@ -22,6 +22,8 @@ enum Command {
     Decode(cli::decode::Args),
     /// Boot a firmware ELF in QEMU (mps2-an386) and print its decoded telemetry and logs live.
     Qemu(cli::qemu::Args),
+    /// Bathymetric graph SLAM from multibeam soundings (CSV input or seeded simulated surveys).
+    Bathy(cli::bathy::Args),
     /// The navigation filter on the host: replay a sensor log, simulate a dive, AUKF-vs-UKF Monte Carlo.
     Filter(cli::filter::Args),
 }
@@ -32,6 +34,7 @@ fn main() -> std::process::ExitCode {
         Command::Decode(a) => cli::decode::run(a, args.format),
         Command::Fgo(a) => cli::fgo::run(a, args.format),
         Command::Qemu(a) => cli::qemu::run(a, args.format),
+        Command::Bathy(a) => cli::bathy::run(a, args.format),
         Command::Filter(a) => cli::filter::run(a, args.format),
     };
     match result {

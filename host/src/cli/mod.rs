@@ -1,6 +1,7 @@
 //! Subcommands of the `subnav` binary: one module each, with clap `Args` and
 //! `run(args, format) -> anyhow::Result<ExitCode>`.
 
+pub mod bathy;
 pub mod decode;
 pub mod fgo;
 pub mod filter;
