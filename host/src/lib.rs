@@ -6,3 +6,6 @@ pub mod cli;
 pub mod fgo;
 pub mod filter;
 pub mod link;
+pub mod record;
+pub mod export;
+pub mod report;

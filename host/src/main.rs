@@ -26,6 +26,18 @@ enum Command {
     Bathy(cli::bathy::Args),
     /// The navigation filter on the host: replay a sensor log, simulate a dive, AUKF-vs-UKF Monte Carlo.
     Filter(cli::filter::Args),
+    /// Record telemetry live (TCP, serial, or RTT with --features probe) to a lossless recording.
+    Record(cli::record::Args),
+    /// Export a recording to MCAP (Foxglove) and/or CSV per message kind.
+    Export(cli::export::Args),
+    /// Mission report from a recording (+ truth): plots and a Markdown/HTML page.
+    Report(cli::report::Args),
+    /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
+    #[cfg(feature = "probe")]
+    Flash(cli::flash::Args),
+    /// Attach to a running board through a debug probe: stream defmt (RTT) and telemetry.
+    #[cfg(feature = "probe")]
+    Attach(cli::attach::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +48,13 @@ fn main() -> std::process::ExitCode {
         Command::Qemu(a) => cli::qemu::run(a, args.format),
         Command::Bathy(a) => cli::bathy::run(a, args.format),
         Command::Filter(a) => cli::filter::run(a, args.format),
+        Command::Record(a) => cli::record::run(a, args.format),
+        Command::Export(a) => cli::export::run(a, args.format),
+        Command::Report(a) => cli::report::run(a, args.format),
+        #[cfg(feature = "probe")]
+        Command::Flash(a) => cli::flash::run(a, args.format),
+        #[cfg(feature = "probe")]
+        Command::Attach(a) => cli::attach::run(a, args.format),
     };
     match result {
         Ok(code) => code,

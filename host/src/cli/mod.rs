@@ -7,6 +7,13 @@ pub mod fgo;
 pub mod filter;
 pub mod print;
 pub mod qemu;
+pub mod record;
+pub mod export;
+pub mod report;
+#[cfg(feature = "probe")]
+pub mod attach;
+#[cfg(feature = "probe")]
+pub mod flash;
 
 /// `--format`: human text or one JSON object per line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -108,6 +108,9 @@ pub struct QemuConfig {
     pub timeout: Duration,
     /// Also write the raw uplink bytes to this file (a recording `subnav decode --file` reads).
     pub record: Option<PathBuf>,
+    /// Also send every byte chunk, as received or sent and before decoding, here (lossless
+    /// recordings: `subnav qemu --record`).
+    pub raw_tap: Option<mpsc::Sender<RawBytes>>,
 }
 
 impl QemuConfig {
@@ -120,6 +123,7 @@ impl QemuConfig {
             icount_shift: 3,
             timeout: Duration::from_secs(120),
             record: None,
+            raw_tap: None,
         }
     }
 }
@@ -153,8 +157,17 @@ impl QemuOutcome {
     }
 }
 
+/// A chunk of bytes that crossed the emulator's boundary (see [`QemuConfig::raw_tap`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RawBytes {
+    Telemetry(Vec<u8>),
+    Defmt(Vec<u8>),
+    Downlink(Vec<u8>),
+}
+
 /// Lets the event callback send commands to the firmware.
 pub struct Downlinker {
+    tap: Option<mpsc::Sender<RawBytes>>,
     stream: TcpStream,
     next_seq: u16,
 }
@@ -167,11 +180,17 @@ impl Downlinker {
         let mut buf = [0u8; MAX_DOWNLINK_FRAME];
         let frame = wire::encode(&Downlink { seq, command }, &mut buf).map_err(|e| anyhow::anyhow!("encoding command: {e}"))?;
         self.stream.write_all(frame).context("sending a command to the emulator")?;
+        if let Some(t) = &self.tap {
+            let _ = t.send(RawBytes::Downlink(frame.to_vec()));
+        }
         Ok(seq)
     }
 
     /// Send raw bytes (tests use this to inject corrupt frames).
     pub fn send_raw(&mut self, bytes: &[u8]) -> Result<()> {
+        if let Some(t) = &self.tap {
+            let _ = t.send(RawBytes::Downlink(bytes.to_vec()));
+        }
         self.stream.write_all(bytes).context("sending bytes to the emulator")
     }
 }
@@ -260,7 +279,7 @@ pub fn run_with_bus(
     let stream = accept_from(&listener, &mut child.0, "UART")?;
     let bus_stream = accept_from(&bus_listener, &mut child.0, "sensor-bus bridge UART")?;
     let bridge = std::thread::spawn(move || serve_bridge(bus_stream, bus));
-    let mut downlink = Downlinker { stream: stream.try_clone()?, next_seq: 1 };
+    let mut downlink = Downlinker { tap: cfg.raw_tap.clone(), stream: stream.try_clone()?, next_seq: 1 };
 
     let (tx, rx) = mpsc::channel();
     spawn_reader(stream, tx.clone(), Chunk::Telemetry, Chunk::TelemetryEnd);
@@ -293,6 +312,9 @@ pub fn run_with_bus(
         }
         match rx.recv_timeout(left) {
             Ok(Chunk::Telemetry(bytes)) => {
+                if let Some(t) = &cfg.raw_tap {
+                    let _ = t.send(RawBytes::Telemetry(bytes.clone()));
+                }
                 if let Some(f) = record.as_mut() {
                     f.write_all(&bytes).context("writing the recording")?;
                 }
@@ -303,6 +325,9 @@ pub fn run_with_bus(
                 }
             }
             Ok(Chunk::Defmt(bytes)) => {
+                if let Some(t) = &cfg.raw_tap {
+                    let _ = t.send(RawBytes::Defmt(bytes.clone()));
+                }
                 let mut lines = vec![];
                 logs.feed(&bytes, |l| lines.push(l));
                 for l in lines {

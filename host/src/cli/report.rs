@@ -1,0 +1,75 @@
+//! `subnav report`: a recording (+ truth, when the dive was simulated) -> figures and a
+//! Markdown/HTML page with error statistics.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use serde_json::json;
+
+use super::Format;
+use crate::record::session::parse_truth_csv;
+use crate::report::{self, ImageFormat, ReportData};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The recording (from `subnav record` or `subnav qemu --record`).
+    pub recording: PathBuf,
+    /// Output directory for the figures, report.md and report.html.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Truth CSV (`t_s,n_m,e_m,d_m,yaw_rad`, sensor-head seconds; `subnav filter simulate --truth`
+    /// writes it). Default: the recording's truth stream, if any.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Firmware ELF to decode the defmt stream (default: the ELF named in the recording).
+    #[arg(long)]
+    pub elf: Option<PathBuf>,
+    /// Image format.
+    #[arg(long, value_enum, default_value_t = ImageFormat::Png)]
+    pub images: ImageFormat,
+    /// Page title.
+    #[arg(long, default_value = "subnav mission report")]
+    pub title: String,
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let (session, note) = super::export::load_session(&args.recording, args.elf.as_deref())?;
+    if let Some(n) = &note {
+        eprintln!("note: {n}");
+    }
+    let truth = match &args.truth {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading the truth file {}", p.display()))?;
+            let (rows, bad) = parse_truth_csv(&text);
+            if bad > 0 {
+                eprintln!("warning: {bad} lines of {} are not `t_s,n_m,e_m,d_m,yaw_rad` rows and were skipped", p.display());
+            }
+            if rows.is_empty() {
+                anyhow::bail!("{} has no truth rows (expected CSV lines t_s,n_m,e_m,d_m,yaw_rad)", p.display());
+            }
+            Some(rows)
+        }
+        None => None,
+    };
+    let data = ReportData::from_session(&session, truth);
+    let bar = super::record::progress_bar(report::plot::FIGURES.len() as u64, "drawing");
+    let written = report::write(&data, &args.out, args.images, &args.title, |name| {
+        bar.set_message(name.to_string());
+        bar.inc(1);
+    })?;
+    bar.finish_and_clear();
+    match format {
+        Format::Text => {
+            println!("report: {} ({} figures), {}", written.markdown.display(), written.figures.len(), written.html.display());
+            if let Some(s) = &written.stats {
+                println!(
+                    "errors vs truth ({} solutions): horizontal RMSE {:.3} m (max {:.3}), depth RMSE {:.3} m, heading RMSE {:.3} deg (max {:.3})",
+                    s.scored, s.horizontal_rmse_m, s.horizontal_max_m, s.depth_rmse_m, s.heading_rmse_deg, s.heading_max_deg
+                );
+            }
+        }
+        Format::Json => println!("{}", json!({"report": written})),
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,125 @@
+//! Lossless recordings of a sensor-head session (`.snrec`).
+//!
+//! Every byte that crossed the link is kept exactly as received, with the host time it arrived,
+//! per stream: uplink telemetry, defmt log bytes, downlink commands the host sent, and optional
+//! truth rows from a simulator. Corrupt frames are recorded too (decoding happens on reading), so
+//! a recording can be decoded again by a later host with better tools.
+//!
+//! Layout (all integers little endian):
+//! ```text
+//! header: MAGIC (8 bytes) | version u16 | meta_len u32 | meta (JSON, meta_len bytes) | crc32 u32
+//! chunk:  SYNC (2 bytes)  | stream u8  | t_host_us u64 | len u32 | data (len bytes) | crc32 u32
+//! ```
+//! The header CRC covers version..meta; a chunk's CRC covers stream..data. CRC-32 is the same
+//! ISO-HDLC CRC as the wire frames. A chunk is written with one `write` call and the file is not
+//! buffered, so a crash loses at most the chunk being written; the reader reports a truncated or
+//! damaged chunk, skips to the next valid `SYNC` and goes on.
+//!
+//! Why not MCAP for recording too: MCAP is the export format (`subnav export`), but its readers
+//! stop at the first damaged record and it wants decoded messages on channels; a recording must
+//! keep undecodable bytes and survive a crash or a damaged disk block mid-file.
+
+pub mod reader;
+pub mod session;
+pub mod writer;
+
+pub use reader::{Damage, Item, Loaded, ReadStats, Reader, RecordError, read_bytes, read_file};
+pub use writer::Writer;
+
+use serde::{Deserialize, Serialize};
+
+/// First 8 bytes of a recording. The `\r\n` and `\x1a` catch text-mode mangling, like PNG's.
+pub const MAGIC: [u8; 8] = *b"\x89SNREC\r\n";
+/// Marks the start of each chunk (lets the reader resynchronise after damage).
+pub const SYNC: [u8; 2] = [0xA5, 0x5A];
+/// Format version this code writes and reads.
+pub const VERSION: u16 = 1;
+/// Largest chunk payload accepted (a larger length field is damage, not an allocation).
+pub const MAX_CHUNK: usize = 1 << 20;
+/// Largest header metadata accepted.
+pub const MAX_META: usize = 1 << 16;
+/// Bytes of a chunk around its data: sync, stream, time, length, CRC.
+pub const CHUNK_OVERHEAD: usize = 2 + 1 + 8 + 4 + 4;
+
+/// Which stream a chunk belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Stream {
+    /// Uplink telemetry bytes (COBS frames), as received.
+    Uplink,
+    /// defmt log bytes (QEMU semihosting stdout or RTT channel 0), as received.
+    Defmt,
+    /// Downlink bytes the host sent to the sensor head.
+    Downlink,
+    /// Truth rows from a simulator: CSV lines `t_s,n_m,e_m,d_m,yaw_rad` (header line allowed).
+    Truth,
+}
+
+impl Stream {
+    pub const ALL: [Stream; 4] = [Stream::Uplink, Stream::Defmt, Stream::Downlink, Stream::Truth];
+
+    pub fn code(self) -> u8 {
+        match self {
+            Stream::Uplink => 0,
+            Stream::Defmt => 1,
+            Stream::Downlink => 2,
+            Stream::Truth => 3,
+        }
+    }
+
+    pub fn from_code(c: u8) -> Option<Stream> {
+        Stream::ALL.into_iter().find(|s| s.code() == c)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stream::Uplink => "uplink",
+            Stream::Defmt => "defmt",
+            Stream::Downlink => "downlink",
+            Stream::Truth => "truth",
+        }
+    }
+}
+
+/// Header metadata (JSON in the file, so fields can be added without a version bump).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Meta {
+    /// Where the bytes came from, e.g. `qemu target/firmware/subnav-qemu.elf` or `serial /dev/ttyUSB0 at 460800 baud`.
+    #[serde(default)]
+    pub source: String,
+    /// Host wall-clock time at the start of the recording, microseconds since the Unix epoch.
+    #[serde(default)]
+    pub start_unix_us: u64,
+    /// The host tool that wrote it.
+    #[serde(default)]
+    pub writer: String,
+    /// The firmware ELF, if known (needed to decode the defmt stream).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elf: Option<String>,
+}
+
+impl Meta {
+    pub fn new(source: impl Into<String>) -> Self {
+        Self { source: source.into(), start_unix_us: now_unix_us(), writer: format!("subnav {}", env!("CARGO_PKG_VERSION")), elf: None }
+    }
+}
+
+/// One chunk of a stream.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Chunk {
+    pub stream: Stream,
+    /// Host receive time, microseconds since the Unix epoch.
+    pub t_host_us: u64,
+    pub data: Vec<u8>,
+}
+
+/// Host wall-clock time, microseconds since the Unix epoch (0 if the clock is before 1970).
+pub fn now_unix_us() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_micros() as u64).unwrap_or(0)
+}
+
+/// Whether `bytes` start like a recording (as opposed to a raw uplink byte file).
+pub fn is_recording(bytes: &[u8]) -> bool {
+    bytes.starts_with(&MAGIC)
+}
+
