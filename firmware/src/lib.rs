@@ -8,6 +8,7 @@
 
 pub mod app;
 pub mod bus_bridge;
+pub mod drivers;
 pub mod estimator;
 pub mod log;
 pub mod sensors;
