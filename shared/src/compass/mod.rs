@@ -123,6 +123,8 @@ pub struct CompassConfig {
     pub min_dolp: f32,
     /// Refractive index of the water ([`water::seawater_index`]).
     pub n_water: f32,
+    /// Correct the e-vectors for the Fresnel polarization of the refracted sunbeam.
+    pub fresnel_correction: bool,
     /// Tolerance beyond the Snell window's edge (rad).
     pub snell_tolerance_rad: f32,
     /// Refracted sun elevation above which the azimuth is not trusted (rad).
@@ -145,6 +147,7 @@ impl Default for CompassConfig {
             min_s0: 1e-3,
             min_dolp: 0.02,
             n_water: water::default_index(),
+            fresnel_correction: true,
             snell_tolerance_rad: 0.035,
             max_water_elevation_rad: 85.0 * DEG,
             min_sun_elevation_rad: 3.0 * DEG,
@@ -257,7 +260,7 @@ pub fn measure_sun(
 ) -> Result<SunMeasurement, NoFix> {
     let up = up_from_accel(accel_body_mps2, cfg)?;
     let obs = observe_units(units, counts, cfg)?;
-    let sun = sun_vector::solve(&obs, &up, &cfg.solver)?;
+    let sun = sun_vector::solve(&obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver)?;
     // Level (heading) frame: x = body x projected on the horizontal, z = down.
     let down = -up;
     let xb = Vector3::new(1.0, 0.0, 0.0);

@@ -81,9 +81,76 @@ fn smallest_eigen(m: Matrix3<f32>) -> Result<(Vector3<f32>, [f32; 3]), NoFix> {
     Ok((v, [eig.eigenvalues[i0], eig.eigenvalues[i1], eig.eigenvalues[i2]]))
 }
 
+/// AoP shift (rad) of unit `o` caused by the partial polarization of the refracted sunbeam
+/// (Fresnel transmission, T_p > T_s), relative to the pure-Rayleigh e-vector `d x s`.
+/// `s`: toward the refracted sun (body), `up`: toward the sky (body).
+fn fresnel_aop_shift(o: &UnitObservation, s: &Vector3<f32>, up: &Vector3<f32>, n_water: f32) -> Option<f32> {
+    let k_t = -s; // propagation in water
+    let down = -up;
+    let cos_t = k_t.dot(&down);
+    if !(cos_t > 0.0) {
+        return None;
+    }
+    let sin_t2 = (1.0 - cos_t * cos_t).max(0.0);
+    let sin_i2 = (n_water * n_water * sin_t2).min(1.0);
+    let cos_i = libm::sqrtf(1.0 - sin_i2);
+    let rs = (cos_i - n_water * cos_t) / (cos_i + n_water * cos_t);
+    let rp = (n_water * cos_i - cos_t) / (n_water * cos_i + cos_t);
+    let (ts, tp) = (1.0 - rs * rs, 1.0 - rp * rp);
+    let sv = k_t.cross(&down);
+    let sn = sv.norm();
+    if !(sn > 1e-4) {
+        return Some(0.0); // sun at the zenith: the beam is unpolarized
+    }
+    let s_hat = sv / sn;
+    let p_hat = s_hat.cross(&k_t);
+    let d = o.view_body;
+    // Projected field components (P = I - d d^T), then Stokes in a frame (a, b) on the unit.
+    let ps = s_hat - d * d.dot(&s_hat);
+    let pp = p_hat - d * d.dot(&p_hat);
+    let e0 = d.cross(s);
+    let e0n = e0.norm();
+    if !(e0n > 1e-4) {
+        return None;
+    }
+    let a = e0 / e0n; // frame axis along the pure-Rayleigh e-vector
+    let b = d.cross(&a);
+    let (sa, sb, pa, pb) = (ps.dot(&a), ps.dot(&b), pp.dot(&a), pp.dot(&b));
+    let s1 = ts * (sa * sa - sb * sb) + tp * (pa * pa - pb * pb);
+    let s2 = 2.0 * (ts * sa * sb + tp * pa * pb);
+    Some(0.5 * libm::atan2f(s2, s1))
+}
+
+/// Rotates an e-vector by `-delta` about the viewing direction.
+fn rotate_back(o: &UnitObservation, delta: f32) -> Vector3<f32> {
+    let (sd, cd) = crate::ephemeris::phase::sincos_rad(delta);
+    o.e_body * cd - o.view_body.cross(&o.e_body) * sd
+}
+
+/// Median of |x| over a small slice (no heap; at most [`super::MAX_UNITS`] values used).
+fn median_abs(x: &[f32]) -> f32 {
+    let mut buf = [0.0f32; super::MAX_UNITS];
+    let n = x.len().min(super::MAX_UNITS);
+    for (b, v) in buf.iter_mut().zip(x) {
+        *b = v.abs();
+    }
+    let sl = buf.get_mut(..n).unwrap_or(&mut []);
+    sl.sort_unstable_by(f32::total_cmp);
+    match n {
+        0 => 0.0,
+        _ if n % 2 == 1 => sl.get(n / 2).copied().unwrap_or(0.0),
+        _ => 0.5 * (sl.get(n / 2 - 1).copied().unwrap_or(0.0) + sl.get(n / 2).copied().unwrap_or(0.0)),
+    }
+}
+
 /// Robust weighted sun vector from the good units. `up_body` is a unit vector toward the sky.
-pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, cfg: &SolverConfig) -> Result<SunVector, NoFix> {
+/// With `n_water`, the e-vectors are corrected for the Fresnel polarization of the refracted
+/// sunbeam (computed from the current sun estimate and the vertical; flat-surface model).
+pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f32>, cfg: &SolverConfig) -> Result<SunVector, NoFix> {
     let n = obs.len();
+    if n > super::MAX_UNITS {
+        return Err(NoFix::BadInput);
+    }
     if n < cfg.min_units.max(2) as usize {
         return Err(NoFix::TooFewUnits);
     }
@@ -100,43 +167,82 @@ pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, cfg: &SolverConfig
     if ev[1] < cfg.min_eigen_gap * trace {
         return Err(NoFix::Degenerate);
     }
+    if s.dot(up_body) < 0.0 {
+        s = -s;
+    }
     let sigma_r = |o: &UnitObservation, s: &Vector3<f32>| {
         sigma_aop(o) * o.view_body.cross(&o.e_body).dot(s).abs().max(cfg.lever_floor)
     };
+    let mut e = [Vector3::zeros(); super::MAX_UNITS];
+    let mut r = [0.0f32; super::MAX_UNITS];
+    let correct = |e: &mut [Vector3<f32>; super::MAX_UNITS], s: &Vector3<f32>| {
+        for (ei, o) in e.iter_mut().zip(obs) {
+            let delta = n_water.and_then(|nw| fresnel_aop_shift(o, s, up_body, nw)).unwrap_or(0.0);
+            *ei = rotate_back(o, delta);
+        }
+    };
+    // Normalised residuals and their robust scale (>= 1: the noise model is a floor).
+    let residuals = |e: &[Vector3<f32>; super::MAX_UNITS], r: &mut [f32; super::MAX_UNITS], s: &Vector3<f32>| -> f32 {
+        for ((ri, ei), o) in r.iter_mut().zip(e.iter()).zip(obs) {
+            *ri = ei.dot(s) / sigma_r(o, s);
+        }
+        (1.482_6 * median_abs(r.get(..n).unwrap_or(&[]))).max(1.0)
+    };
     for _ in 0..cfg.irls_iterations {
+        correct(&mut e, &s);
+        let scale = residuals(&e, &mut r, &s);
         m = Matrix3::zeros();
         trace = 0.0;
-        for o in obs {
+        for ((ei, ri), o) in e.iter().zip(r.iter()).zip(obs) {
             let sr = sigma_r(o, &s);
-            let r = o.e_body.dot(&s) / sr;
-            let huber = if r.abs() <= cfg.huber_k { 1.0 } else { cfg.huber_k / r.abs() };
+            let u = ri.abs() / scale;
+            let huber = if u <= cfg.huber_k { 1.0 } else { cfg.huber_k / u };
             let w = huber / (sr * sr);
-            m += o.e_body * o.e_body.transpose() * w;
+            m += ei * ei.transpose() * w;
             trace += w;
         }
         let (s_new, ev_new) = smallest_eigen(m)?;
-        s = if s_new.dot(&s) < 0.0 { -s_new } else { s_new };
+        s = if s_new.dot(up_body) < 0.0 { -s_new } else { s_new };
         ev = ev_new;
     }
     if ev[1] < cfg.min_eigen_gap * trace {
         return Err(NoFix::Degenerate);
     }
-    if s.dot(up_body) < 0.0 {
-        s = -s;
-    }
-    // Residuals, outliers, chi-square and the Fisher information with unit-Huber weights.
-    let mut info = Matrix3::zeros();
-    let (mut chi2, mut used, mut outliers) = (0.0f32, 0u8, 0u8);
-    for o in obs {
-        let sr = sigma_r(o, &s);
-        let r = o.e_body.dot(&s) / sr;
-        if r.abs() > cfg.outlier_sigma {
+    // Outliers (far beyond the robust scale) are dropped and the sun re-solved from the inliers
+    // with plain inverse-variance weights; then chi-square and the Fisher information.
+    correct(&mut e, &s);
+    let scale = residuals(&e, &mut r, &s);
+    let mut inlier = [false; super::MAX_UNITS];
+    let mut outliers = 0u8;
+    for (ok, ri) in inlier.iter_mut().zip(r.iter()).take(n) {
+        *ok = ri.abs() <= cfg.outlier_sigma * scale;
+        if !*ok {
             outliers = outliers.saturating_add(1);
+        }
+    }
+    if outliers > 0 && n - (outliers as usize) >= cfg.min_units.max(2) as usize {
+        m = Matrix3::zeros();
+        for ((ei, ok), o) in e.iter().zip(inlier.iter()).zip(obs) {
+            if *ok {
+                let sr = sigma_r(o, &s);
+                m += ei * ei.transpose() / (sr * sr);
+            }
+        }
+        let (s_new, _) = smallest_eigen(m)?;
+        s = if s_new.dot(up_body) < 0.0 { -s_new } else { s_new };
+        correct(&mut e, &s);
+        residuals(&e, &mut r, &s);
+    }
+    let mut info = Matrix3::zeros();
+    let (mut chi2, mut used) = (0.0f32, 0u8);
+    for (((ei, ri), ok), o) in e.iter().zip(r.iter()).zip(inlier.iter()).zip(obs) {
+        if !*ok {
             continue;
         }
+        let sr = sigma_r(o, &s);
         used = used.saturating_add(1);
-        chi2 += r * r;
-        info += o.e_body * o.e_body.transpose() / (sr * sr);
+        chi2 += ri * ri;
+        info += ei * ei.transpose() / (sr * sr);
     }
     if used < cfg.min_units.max(2) {
         return Err(NoFix::TooFewUnits);

@@ -7,6 +7,11 @@ use nalgebra::Rotation3;
 
 const N_UNITS: usize = 8;
 
+/// The synthetic data here is pure Rayleigh (no Fresnel polarization of the sunbeam).
+fn cfg() -> CompassConfig {
+    CompassConfig { fresnel_correction: false, ..CompassConfig::default() }
+}
+
 fn units() -> [UnitModel; N_UNITS] {
     core::array::from_fn(|i| {
         let (v, a) = unit::ring_geometry(i, N_UNITS, 15.0 * DEG);
@@ -53,7 +58,7 @@ struct Scene {
 
 /// Scene for a vehicle attitude (roll, pitch, yaw) with the sun from the ephemeris.
 fn scene(units: &[UnitModel], roll: f32, pitch: f32, yaw: f32, s0: f32, dolp_scale: f32, bad: Option<usize>) -> Scene {
-    let cfg = CompassConfig::default();
+    let cfg = cfg();
     let eph = ephemeris::sun_position(T_US, &place(), Some(&Atmosphere::default()), 70.0).unwrap();
     let zw = water::water_zenith_rad(eph.apparent_zenith_rad, cfg.n_water);
     let (sz, cz) = (libm::sinf(zw), libm::cosf(zw));
@@ -71,7 +76,7 @@ fn scene_for(units: &[UnitModel], s_ned: Vector3<f32>, roll: f32, pitch: f32, ya
 
 fn run(units: &[UnitModel], sc: &Scene) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
     let input = CompassInput { counts: &sc.counts, accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
-    solve(units, &input, &CompassConfig::default())
+    solve(units, &input, &cfg())
 }
 
 fn ang_diff(a: f32, b: f32) -> f32 {
@@ -136,9 +141,9 @@ fn no_fix_too_few_units_and_bad_input() {
     let u = units();
     let sc = scene(&u, 0.0, 0.0, 1.0, 1.0, 1.0, None);
     let input = CompassInput { counts: &sc.counts[..2], accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
-    assert_eq!(no_fix(solve(&u[..2], &input, &CompassConfig::default())), NoFix::TooFewUnits);
-    assert_eq!(no_fix(solve(&u[..3], &input, &CompassConfig::default())), NoFix::BadInput);
-    assert_eq!(sun_vector::solve(&[], &Vector3::z(), &SolverConfig::default()), Err(NoFix::TooFewUnits));
+    assert_eq!(no_fix(solve(&u[..2], &input, &cfg())), NoFix::TooFewUnits);
+    assert_eq!(no_fix(solve(&u[..3], &input, &cfg())), NoFix::BadInput);
+    assert_eq!(sun_vector::solve(&[], &Vector3::z(), None, &SolverConfig::default()), Err(NoFix::TooFewUnits));
 }
 
 #[test]
@@ -166,25 +171,25 @@ fn no_fix_time_night_tilt() {
     let sc = scene(&u, 0.0, 0.0, 1.0, 1.0, 1.0, None);
     // No time: the sun is still measured.
     let input = CompassInput { counts: &sc.counts, accel_body_mps2: sc.accel, unix_us: None, observer: None, delta_t_s: 70.0 };
-    match solve(&u, &input, &CompassConfig::default()) {
+    match solve(&u, &input, &cfg()) {
         Err((NoFix::NoTime, Some(m))) => assert!(m.sun.units_used as usize == N_UNITS),
         other => panic!("{other:?}"),
     }
     // Ephemeris says night (same place, 02:00 UTC).
     let night = CompassInput { unix_us: Some(T_US - 12 * 3_600_000_000), observer: Some(place()), ..input };
-    let r = solve(&u, &night, &CompassConfig::default());
+    let r = solve(&u, &night, &cfg());
     assert_eq!(no_fix(r), NoFix::SunBelowHorizon);
     // Free fall / bad accelerometer, NaN.
     let tilt = CompassInput { accel_body_mps2: [0.0, 0.0, -2.0], ..night };
-    assert_eq!(no_fix(solve(&u, &tilt, &CompassConfig::default())), NoFix::TiltInvalid);
+    assert_eq!(no_fix(solve(&u, &tilt, &cfg())), NoFix::TiltInvalid);
     let nan = CompassInput { accel_body_mps2: [f32::NAN, 0.0, -9.8], ..input };
-    assert_eq!(no_fix(solve(&u, &nan, &CompassConfig::default())), NoFix::NonFinite);
+    assert_eq!(no_fix(solve(&u, &nan, &cfg())), NoFix::NonFinite);
     // Body x axis vertical.
     let vertical = CompassInput { accel_body_mps2: [-9.8, 0.0, 0.0], ..input };
-    assert_eq!(no_fix(solve(&u, &vertical, &CompassConfig::default())), NoFix::TiltInvalid);
+    assert_eq!(no_fix(solve(&u, &vertical, &cfg())), NoFix::TiltInvalid);
     // Wrong place: measured elevation disagrees with the ephemeris.
     let wrong = CompassInput { observer: Some(Observer { lat_rad: -30.0 * DEG, ..place() }), unix_us: Some(T_US - 5 * 3_600_000_000), ..input };
-    let r = solve(&u, &wrong, &CompassConfig::default());
+    let r = solve(&u, &wrong, &cfg());
     assert!(matches!(no_fix(r), NoFix::Inconsistent | NoFix::SunBelowHorizon));
 }
 
