@@ -35,7 +35,10 @@ pub struct Summary {
     pub reduction_rt: f64,
     /// Runs where gated batch RMSE < ungated batch RMSE.
     pub runs_gated_better: usize,
+    /// Wall-clock time per update (inflated when the machine is shared).
     pub latency_ms: Percentiles,
+    /// Thread CPU time per update: the one-core latency.
+    pub cpu_ms: Percentiles,
     pub updates: usize,
     pub per_run: Vec<RunMetrics>,
 }
@@ -73,12 +76,13 @@ pub fn percentiles(mut v: Vec<f64>) -> Percentiles {
 }
 
 /// One seeded run.
-pub fn run_one(seed: u64, base: &SimConfig, latency_s: &mut Vec<f64>) -> Result<RunMetrics, FgoError> {
+pub fn run_one(seed: u64, base: &SimConfig, latency_s: &mut Vec<f64>, cpu_s: &mut Vec<f64>) -> Result<RunMetrics, FgoError> {
     let sim = simulate(&SimConfig { seed, ..*base });
     let gated = smoother::run(&sim.log, SmootherConfig::default(), true, |_, _| {})?;
     let off = SmootherConfig { gating: GatingConfig { enabled: false, ..Default::default() }, ..Default::default() };
     let ungated = smoother::run(&sim.log, off, true, |_, _| {})?;
     latency_s.extend_from_slice(&gated.latency_s);
+    cpu_s.extend_from_slice(&gated.cpu_s);
     let ukf = ukf_baseline::run(&sim.log)?;
     Ok(RunMetrics {
         seed,
@@ -97,8 +101,9 @@ pub fn run_one(seed: u64, base: &SimConfig, latency_s: &mut Vec<f64>) -> Result<
 pub fn run_all(runs: usize, first_seed: u64, base: &SimConfig, mut progress: impl FnMut(usize)) -> Result<Summary, FgoError> {
     let mut per_run = Vec::with_capacity(runs);
     let mut lat = Vec::new();
+    let mut cpu = Vec::new();
     for i in 0..runs {
-        per_run.push(run_one(first_seed + i as u64, base, &mut lat)?);
+        per_run.push(run_one(first_seed + i as u64, base, &mut lat, &mut cpu)?);
         progress(i + 1);
     }
     let n = runs.max(1) as f64;
@@ -124,6 +129,7 @@ pub fn run_all(runs: usize, first_seed: u64, base: &SimConfig, mut progress: imp
         mean: means,
         updates: lat.len(),
         latency_ms: percentiles(lat.iter().map(|s| s * 1e3).collect()),
+        cpu_ms: percentiles(cpu.iter().map(|s| s * 1e3).collect()),
         per_run,
     })
 }
