@@ -3,6 +3,7 @@
 
 pub mod bathy;
 pub mod cli;
+pub mod compass;
 pub mod fgo;
 pub mod filter;
 pub mod link;

@@ -26,6 +26,10 @@ enum Command {
     Bathy(cli::bathy::Args),
     /// The navigation filter on the host: replay a sensor log, simulate a dive, AUKF-vs-UKF Monte Carlo.
     Filter(cli::filter::Args),
+    /// Apparent solar zenith and azimuth for a time and place (the sensor head's ephemeris).
+    Sun(cli::sun::Args),
+    /// Run the polarization compass on a simulated sky or a CSV of raw channel counts.
+    Compass(cli::compass::Args),
     /// Record telemetry live (TCP, serial, or RTT with --features probe) to a lossless recording.
     Record(cli::record::Args),
     /// Export a recording to MCAP (Foxglove) and/or CSV per message kind.
@@ -48,6 +52,8 @@ fn main() -> std::process::ExitCode {
         Command::Qemu(a) => cli::qemu::run(a, args.format),
         Command::Bathy(a) => cli::bathy::run(a, args.format),
         Command::Filter(a) => cli::filter::run(a, args.format),
+        Command::Sun(a) => cli::sun::run(a, args.format),
+        Command::Compass(a) => cli::compass::run(a, args.format),
         Command::Record(a) => cli::record::run(a, args.format),
         Command::Export(a) => cli::export::run(a, args.format),
         Command::Report(a) => cli::report::run(a, args.format),

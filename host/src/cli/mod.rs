@@ -2,11 +2,13 @@
 //! `run(args, format) -> anyhow::Result<ExitCode>`.
 
 pub mod bathy;
+pub mod compass;
 pub mod decode;
 pub mod fgo;
 pub mod filter;
 pub mod print;
 pub mod qemu;
+pub mod sun;
 pub mod record;
 pub mod export;
 pub mod report;
