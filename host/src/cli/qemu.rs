@@ -8,8 +8,8 @@ use std::time::Duration;
 use anyhow::Result;
 
 use super::{Format, print};
-use crate::link::qemu::{self, QemuConfig, QemuEvent, RawBytes};
-use crate::record::{Meta, Stream, Writer};
+use crate::link::qemu::{self, QemuConfig, QemuEvent};
+use crate::record::tap::QemuRecorder;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -40,33 +40,14 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     cfg.run_ms = (args.run_ms > 0).then_some(args.run_ms);
     cfg.timeout = Duration::from_secs(args.timeout_s);
     cfg.icount_shift = args.icount_shift;
-    let recorder = match &args.record {
-        Some(path) => {
-            let mut meta = Meta::new(format!("qemu {}", args.elf.display()));
-            meta.elf = Some(args.elf.display().to_string());
-            let mut w = Writer::create(path, &meta)?;
-            let (tx, rx) = std::sync::mpsc::channel::<RawBytes>();
-            cfg.raw_tap = Some(tx);
-            Some(std::thread::spawn(move || -> Result<()> {
-                for raw in rx {
-                    match raw {
-                        RawBytes::Telemetry(b) => w.chunk_now(Stream::Uplink, &b)?,
-                        RawBytes::Defmt(b) => w.chunk_now(Stream::Defmt, &b)?,
-                        RawBytes::Downlink(b) => w.chunk_now(Stream::Downlink, &b)?,
-                    }
-                }
-                w.flush()
-            }))
-        }
-        None => None,
-    };
+    let recorder = args.record.as_ref().map(|p| QemuRecorder::start(&mut cfg, p)).transpose()?;
     let outcome = qemu::run(&cfg, |event, _| match event {
         QemuEvent::Link(e) => print::event(&e, format),
         QemuEvent::Log(l) => print::log(&l, format),
     });
-    drop(cfg);
-    if let Some(h) = recorder {
-        h.join().map_err(|_| anyhow::anyhow!("the recording thread panicked"))??;
+    cfg.raw_tap = None;
+    if let Some(r) = recorder {
+        r.finish()?;
     }
     let outcome = outcome?;
     print::summary(&outcome.link, 0, format);

@@ -14,7 +14,15 @@ use crate::report::{self, ImageFormat, ReportData};
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The recording (from `subnav record` or `subnav qemu --record`).
-    pub recording: PathBuf,
+    #[arg(required_unless_present = "simulate_dive")]
+    pub recording: Option<PathBuf>,
+    /// Instead of a recording: simulate a dive with this seed (the host dive simulator through
+    /// the shared navigation filter), write it to OUT/dive.snrec, and report on it with its truth.
+    #[arg(long, conflicts_with = "recording")]
+    pub simulate_dive: Option<u64>,
+    /// With --simulate-dive: dive length, s.
+    #[arg(long, default_value_t = 300.0)]
+    pub duration_s: f64,
     /// Output directory for the figures, report.md and report.html.
     #[arg(long, short)]
     pub out: PathBuf,
@@ -34,7 +42,21 @@ pub struct Args {
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    let (session, note) = super::export::load_session(&args.recording, args.elf.as_deref())?;
+    let recording = match (&args.recording, args.simulate_dive) {
+        (Some(r), _) => r.clone(),
+        (None, Some(seed)) => {
+            std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+            let p = args.out.join("dive.snrec");
+            let bar = super::record::progress_bar(0, "simulating the dive");
+            let opt = report::dive::DiveOptions { seed, duration_s: args.duration_s, ..Default::default() };
+            let s = report::dive::write_recording(&p, &opt)?;
+            bar.finish_and_clear();
+            eprintln!("simulated dive: {} nav, {} health, {} fault messages, {} truth rows -> {}", s.nav, s.health, s.faults, s.truth_rows, p.display());
+            p
+        }
+        (None, None) => anyhow::bail!("give a recording, or --simulate-dive SEED"),
+    };
+    let (session, note) = super::export::load_session(&recording, args.elf.as_deref())?;
     if let Some(n) = &note {
         eprintln!("note: {n}");
     }

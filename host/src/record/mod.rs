@@ -21,6 +21,7 @@
 
 pub mod reader;
 pub mod session;
+pub mod tap;
 pub mod writer;
 
 pub use reader::{Damage, Item, Loaded, ReadStats, Reader, RecordError, read_bytes, read_file};

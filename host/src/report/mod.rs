@@ -7,6 +7,7 @@
 //! truth linearly interpolated to each navigation solution's time (yaw interpolated on the
 //! circle); solutions outside the truth's time span are not scored.
 
+pub mod dive;
 pub mod plot;
 
 use std::f64::consts::PI;

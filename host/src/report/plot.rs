@@ -96,11 +96,7 @@ fn series_chart<DB: DrawingBackend>(
         let r = range(all, 0.0);
         let (lo, hi) = (r.start.max(1e-12), r.end.max(r.start.max(1e-12) * 10.0));
         let mut c = b.build_cartesian_2d(x, (lo * 0.5..hi * 2.0).log_scale()).map_err(err)?;
-        let mut m = c.configure_mesh();
-        if !text {
-            m.disable_x_mesh().disable_y_mesh();
-        }
-        m.x_desc("t (s)").y_desc(y_label).draw().map_err(err)?;
+        c.configure_mesh().x_desc("t (s)").y_desc(y_label).y_label_formatter(&|v: &f64| format!("{v:.0e}")).draw().map_err(err)?;
         for (name, col, pts) in series {
             let s = c.draw_series(LineSeries::new(pts.iter().copied().filter(|p| p.1 > 0.0 && p.1.is_finite()), col.stroke_width(2))).map_err(err)?;
             if text {
