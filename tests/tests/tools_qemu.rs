@@ -1,0 +1,86 @@
+//! Host tools on a real QEMU run: `subnav qemu --record` (through the library: the same
+//! `QemuRecorder`) writes a lossless recording with the uplink and defmt streams; decoding it
+//! gives exactly what the live run printed; `export` writes MCAP that an independent reader (the
+//! `mcap` Python package from the peer venv) reads back with the expected channels, schemas and
+//! message counts. Needs `SUBNAV_FIRMWARE_QEMU_ELF` and `SUBNAV_PEER_PYTHON` (`cargo xtask test`).
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use subnav_host::export::{TimeBase, mcap::write, schema};
+use subnav_host::link::LinkEvent;
+use subnav_host::link::defmt_log::DefmtTable;
+use subnav_host::link::qemu::{QemuConfig, QemuEvent, run};
+use subnav_host::record::{read_file, session::Session, tap::QemuRecorder};
+
+#[test]
+fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {
+    let elf = subnav_tests::qemu_elf();
+    let dir = std::env::temp_dir().join(format!("subnav-tools-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rec = dir.join("run.snrec");
+    let mut cfg = QemuConfig::new(&elf);
+    cfg.run_ms = Some(3_000);
+    cfg.timeout = Duration::from_secs(90);
+    let recorder = QemuRecorder::start(&mut cfg, &rec).unwrap();
+    let (mut live, mut live_logs) = (vec![], vec![]);
+    let outcome = run(&cfg, |e, _| match e {
+        QemuEvent::Link(LinkEvent::Message(m)) => live.push(m),
+        QemuEvent::Link(other) => panic!("unexpected link event {other:?}"),
+        QemuEvent::Log(l) => live_logs.push(l.message),
+    })
+    .unwrap();
+    cfg.raw_tap = None;
+    let chunks = recorder.finish().unwrap();
+    assert!(outcome.success(), "{outcome:?}");
+    assert!(chunks[0] > 0 && chunks[1] > 0, "uplink and defmt chunks recorded: {chunks:?}");
+
+    // Lossless: the recording decodes to exactly what the live run saw, logs included.
+    let loaded = read_file(&rec).unwrap();
+    assert!(loaded.damage.is_empty());
+    let table = DefmtTable::from_elf_path(&elf).unwrap();
+    let s = Session::decode(&loaded, Some(&table));
+    let got: Vec<_> = s.messages.iter().map(|m| m.item).collect();
+    assert_eq!(format!("{got:?}"), format!("{live:?}")); // as text: NaN fields
+    let logs: Vec<_> = s.logs.iter().map(|l| l.item.message.clone()).collect();
+    assert_eq!(logs, live_logs);
+    assert!(logs.iter().any(|l| l.contains("booting")));
+
+    let mcap_path = dir.join("run.mcap");
+    let summary = write(&s, std::io::BufWriter::new(std::fs::File::create(&mcap_path).unwrap()), TimeBase::Sensor, |_, _| {}).unwrap();
+    let mut expected: BTreeMap<String, u64> = BTreeMap::new();
+    for m in &s.messages {
+        *expected.entry(format!("/subnav/{}", m.item.kind())).or_insert(0) += 1;
+    }
+    if let Some(n) = expected.get("/subnav/nav").copied() {
+        expected.insert("/subnav/pose".into(), n);
+    }
+    expected.insert("/subnav/log".into(), s.logs.len() as u64);
+    assert_eq!(summary.topics, expected);
+    assert!(expected["/subnav/nav"] >= 25, "3 s at 10 Hz: {expected:?}");
+
+    let out = std::process::Command::new(subnav_tests::peer_python())
+        .arg(subnav_tests::peers_dir().join("tools_mcap_read.py"))
+        .arg(&mcap_path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "python mcap reader: {}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let topics = v["topics"].as_object().unwrap();
+    assert_eq!(topics.len(), expected.len(), "{v}");
+    for (topic, n) in &expected {
+        let t = &topics[topic];
+        assert_eq!(t["count"].as_u64(), Some(*n), "{topic}: {t}");
+        assert_eq!(t["schema_encoding"], "jsonschema", "{topic}");
+        assert_eq!(t["message_encoding"], "json", "{topic}");
+        let want = match topic.as_str() {
+            "/subnav/pose" => "foxglove.PoseInFrame".to_string(),
+            "/subnav/log" => "foxglove.Log".to_string(),
+            k => schema::for_kind(k.trim_start_matches("/subnav/")).unwrap().0,
+        };
+        assert_eq!(t["schema"], want.as_str(), "{topic}");
+    }
+    assert_eq!(v["message_count"].as_u64(), Some(expected.values().sum::<u64>()));
+    assert_eq!(topics["/subnav/pose"]["keys"], serde_json::json!(["frame_id", "pose", "timestamp"]));
+    let _ = std::fs::remove_dir_all(&dir);
+}
