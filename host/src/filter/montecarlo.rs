@@ -184,3 +184,28 @@ pub fn compare(dive_cfg: &DiveConfig, ukf_cfg: NavConfig, aukf_cfg: NavConfig, f
     let red = 1.0 - aukf.position_rmse_m / ukf.position_rmse_m.max(f64::MIN_POSITIVE);
     Ok(Comparison { first_seed, ukf, aukf, position_rmse_reduction: red })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Small asserted version of the Monte Carlo (the full one is `subnav filter montecarlo
+    /// --runs 500`, results in docs/PERFORMANCE.md): 6 seeded 240 s dives with a 60 s heading
+    /// noise x10 period and two DVL bursts x20. The adaptive filter must beat the plain one on
+    /// position RMSE and must not diverge.
+    #[test]
+    fn aukf_beats_ukf_on_short_dives_with_noise_changes() {
+        let cfg = DiveConfig {
+            duration_s: 240.0,
+            heading_burst: (60.0, 120.0, 10.0),
+            dvl_bursts: vec![(150.0, 160.0, 20.0), (200.0, 210.0, 20.0)],
+            ..DiveConfig::default()
+        };
+        let c = compare(&cfg, NavConfig::default(), NavConfig::default().adaptive(), 1000, 6, 2).unwrap();
+        println!("{}", serde_json::to_string(&c).unwrap());
+        assert_eq!(c.ukf.runs, 6);
+        assert_eq!(c.aukf.divergences, 0, "{c:?}");
+        assert!(c.aukf.position_rmse_m < c.ukf.position_rmse_m, "{c:?}");
+        assert!(c.aukf.heading_rmse_deg < c.ukf.heading_rmse_deg, "{c:?}");
+    }
+}

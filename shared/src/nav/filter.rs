@@ -341,6 +341,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         Ok(())
     }
 
+    /// Run the UKF predict now over the IMU increments accumulated since the last one (updates
+    /// do this themselves; a firmware app may call it to bound the latency of `solution()`'s
+    /// sigmas).
+    pub fn flush_covariance(&mut self) -> Result<(), NavError> {
+        self.cov_predict()
+    }
+
     /// UKF predict over the increments accumulated since the last one.
     pub(crate) fn cov_predict(&mut self) -> Result<(), NavError> {
         if self.inc.samples == 0 || !(self.inc.dt_s > 0.0) {

@@ -33,3 +33,6 @@ pub mod velocity;
 
 pub use filter::{NavConfig, NavError, NavFilter, NavFilter15, NavFilter18, NavInit, SensorConfig, KIND_DEPTH, KIND_HEADING, KIND_POSITION, KIND_VELOCITY};
 pub use state::NominalState;
+
+#[cfg(test)]
+mod tests;

@@ -122,8 +122,9 @@ pub struct MeasNoise<T: RealField + Copy, const M: usize> {
     pub v_k: u32,
     /// Gate: chi-square threshold on the NIS (e.g. [`super::gate::chi2_999`]); infinite = off.
     pub gate: T,
-    /// Gate floor: the state part of the gating covariance is capped at `gate_state_max` times
-    /// the measurement noise (trace ratio), so the gate can still reject when `P` is huge.
+    /// Gate floor: on every axis the state part of the gating covariance is capped at
+    /// `gate_state_max` times the measurement noise, so the gate can still reject when `P` is
+    /// huge.
     pub gate_state_max: T,
     /// After this many consecutive rejections the cap is lifted for the next measurement
     /// (re-acquisition after an outage); 0 = never.

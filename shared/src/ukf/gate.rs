@@ -2,8 +2,9 @@
 //!
 //! The NIS `e^T S^-1 e` with `S = P_zz + R` tends to zero when the state covariance grows (long
 //! outage, bad tuning): an ungated filter, or a gate on that NIS alone, then accepts anything.
-//! The gate here uses `S_gate = R + c * P_zz` with `c = min(1, gate_state_max * tr(R) / tr(P_zz))`:
-//! the state part of the gating covariance is capped relative to the measurement noise, so a
+//! The gate here uses `S_gate = R + c * P_zz` with `c = min(1, gate_state_max / max_i(P_zz,ii /
+//! R_ii))`: on every axis the state part of the gating covariance is capped at `gate_state_max`
+//! times the measurement noise, so a
 //! measurement far from the prediction (in units of the sensor's own noise) is still rejected
 //! however large `P` is. To re-acquire after a real jump, the cap is lifted once a configured
 //! number of consecutive measurements has been rejected.
@@ -37,10 +38,14 @@ pub fn gating_cov<T: RealField + Copy, const M: usize>(
     r: &SMatrix<T, M, M>,
     state_max: T,
 ) -> SMatrix<T, M, M> {
-    let tr_p = pzz.trace();
-    let tr_r = r.trace();
-    let cap = state_max * tr_r;
-    let c = if tr_p > cap && tr_p > T::zero() { cap / tr_p } else { T::one() };
+    let mut worst = T::zero();
+    for i in 0..M {
+        let ratio = pzz[(i, i)] / r[(i, i)];
+        if ratio > worst {
+            worst = ratio;
+        }
+    }
+    let c = if worst > state_max { state_max / worst } else { T::one() };
     r + pzz * c
 }
 
