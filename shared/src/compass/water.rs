@@ -28,7 +28,8 @@ pub fn air_zenith_rad(water_zenith_rad: f32, n_water: f32, tolerance_rad: f32) -
         return None;
     }
     if x <= 1.0 {
-        return Some(libm::asinf(x));
+        // atan2 form: libm's asinf uses an f64 square root (software on the M4F) for x >= 0.5.
+        return Some(libm::atan2f(x, libm::sqrtf(1.0 - x * x)));
     }
     let critical = libm::asinf(1.0 / n_water);
     if water_zenith_rad <= critical + tolerance_rad { Some(core::f32::consts::FRAC_PI_2) } else { None }

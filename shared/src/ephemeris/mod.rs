@@ -117,9 +117,13 @@ const L_MEAN_RATE: Rate = Rate::from_turns_per_day(terms::L_POLY[1] * 1e-8 / cor
 const GMST_B: u64 = turns_q64(280.460_618_37 / 360.0);
 const GMST_RATE: Rate = Rate::from_turns_per_day(360.985_647_366_29 / 360.0);
 const HALF_TURN: u64 = 1 << 63;
+/// Secular polynomials as f32 (compile time); L's orders 0 and 1 are the mean-longitude phase.
+const L_POLY_REST: [f32; 6] = [0.0, 0.0, terms::L_POLY[2] as f32, terms::L_POLY[3] as f32, terms::L_POLY[4] as f32, terms::L_POLY[5] as f32];
+const B_POLY_F32: [f32; 2] = [terms::B_POLY[0] as f32, terms::B_POLY[1] as f32];
+const R_POLY_F32: [f32; 5] = [terms::R_POLY[0] as f32, terms::R_POLY[1] as f32, terms::R_POLY[2] as f32, terms::R_POLY[3] as f32, terms::R_POLY[4] as f32];
 
 /// Sums `amp * cos(phase)` per power of tau, then combines with the powers of tau.
-fn vsop_sum<const N: usize>(terms: &[terms::VsopTerm; N], poly: &[f64], t: SplitTime, tau: f32) -> f32 {
+fn vsop_sum<const N: usize>(terms: &[terms::VsopTerm; N], poly: &[f32], t: SplitTime, tau: f32) -> f32 {
     let mut by_k = [0.0f32; 6];
     for term in terms {
         let (_, c) = sincos(phase(term.b, term.rate, t));
@@ -130,7 +134,7 @@ fn vsop_sum<const N: usize>(terms: &[terms::VsopTerm; N], poly: &[f64], t: Split
     // Secular polynomial terms of order >= 2 (order 0/1 of L are handled as a phase).
     for (k, &p) in poly.iter().enumerate() {
         if let Some(s) = by_k.get_mut(k) {
-            *s += p as f32;
+            *s += p;
         }
     }
     let mut acc = 0.0;
@@ -176,10 +180,9 @@ pub fn sun_position(
 
     // Heliocentric longitude (phase + small f32 part), latitude and radius (SPA 3.2).
     let l_mean = phase(L_MEAN_B, L_MEAN_RATE, tt);
-    let l_poly_rest = [0.0, 0.0, terms::L_POLY[2], terms::L_POLY[3], terms::L_POLY[4], terms::L_POLY[5]];
-    let l_small_rad = vsop_sum(&terms::L_TERMS, &l_poly_rest, tt, tau) * 1e-8;
-    let b_rad = vsop_sum(&terms::B_TERMS, &terms::B_POLY, tt, tau) * 1e-8;
-    let r_au = vsop_sum(&terms::R_TERMS, &terms::R_POLY, tt, tau) * 1e-8;
+    let l_small_rad = vsop_sum(&terms::L_TERMS, &L_POLY_REST, tt, tau) * 1e-8;
+    let b_rad = vsop_sum(&terms::B_TERMS, &B_POLY_F32, tt, tau) * 1e-8;
+    let r_au = vsop_sum(&terms::R_TERMS, &R_POLY_F32, tt, tau) * 1e-8;
 
     // Nutation (SPA 3.4).
     let mut dpsi = 0.0f32;

@@ -77,13 +77,15 @@ pub fn to_rad(p: u64) -> f32 {
 }
 
 /// Radians (|x| < 1e6) to a phase (Q0.64 turns). Resolution of the f32 input is kept.
+/// Only f32 <-> i32 conversions (single instructions on the FPU), no 64-bit float conversion.
 #[inline]
 pub fn from_rad(x: f32) -> u64 {
-    // Split into whole turns and the rest so that the product stays exact enough in f32.
+    // Subtract the nearest whole number of turns so that |rest| <= pi; the saturating cast
+    // maps +pi to just below half a turn.
     let turns = x * (1.0 / core::f32::consts::TAU);
-    let whole = turns as i64 as f32;
+    let whole = (turns + if turns >= 0.0 { 0.5 } else { -0.5 }) as i32 as f32;
     let rest = x - whole * core::f32::consts::TAU;
-    (((rest * Q32_PER_RAD) as i64) as u64) << 32
+    u64::from((rest * Q32_PER_RAD) as i32 as u32) << 32
 }
 
 /// Sine and cosine of a phase (Q0.64 turns). Max abs error about 1.2e-7.
