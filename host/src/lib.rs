@@ -2,6 +2,7 @@
 //! The `subnav` binary (`src/main.rs`) is a thin clap front end over [`cli`].
 
 pub mod bathy;
+pub mod chips;
 pub mod cli;
 pub mod compass;
 pub mod fgo;
