@@ -64,6 +64,9 @@ pub struct Args {
     /// Gravity-vector tilt error, 1-sigma per axis (deg).
     #[arg(long, default_value_t = 0.01)]
     pub tilt_sigma_deg: f64,
+    /// RMS surface slope for a wavy surface (0 = flat; 16 facets per draw when > 0).
+    #[arg(long, default_value_t = 0.0)]
+    pub slope_rms: f64,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -87,6 +90,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     }
 }
 
+fn water(args: &Args) -> sim::Water {
+    let flat = sim::Water::clear();
+    if args.slope_rms > 0.0 { sim::Water { slope_rms: args.slope_rms, facets: 16, ..flat } } else { flat }
+}
+
 fn simulate(args: &Args, format: Format) -> Result<ExitCode> {
     let cfg = montecarlo::McConfig {
         draws: args.draws,
@@ -95,6 +103,7 @@ fn simulate(args: &Args, format: Format) -> Result<ExitCode> {
         max_elevation_deg: args.max_elevation_deg,
         units: args.units,
         tilt_sigma_rad: args.tilt_sigma_deg.to_radians(),
+        water: water(args),
         seed: args.seed,
         ..montecarlo::McConfig::default()
     };
@@ -134,6 +143,7 @@ fn geolocate(args: &Args, format: Format) -> Result<ExitCode> {
         tilt_sigma_rad: args.tilt_sigma_deg.to_radians(),
         heading_sigma_rad: args.heading_sigma_deg.to_radians(),
         fit_azimuth_offset: !args.known_heading,
+        water: water(args),
         seed: args.seed,
         ..geoloc::GeoConfig::default()
     };
