@@ -134,6 +134,7 @@ impl App {
 
     /// Read the sensors that are due at `now_us` and run the estimator on them.
     pub fn sensor_tick(&mut self, now_us: u64, sensors: &mut impl SensorSuite, sink: &mut impl TelemetrySink) {
+        sensors.service(now_us);
         if self.imu_task.due(now_us) {
             match sensors.read_imu(now_us) {
                 Ok(s) => {

@@ -116,6 +116,26 @@ impl<L: ByteLink> BridgeClient<L> {
     }
 }
 
+/// `DelayNs` for code running over the bridge: a delay advances the logical time stamped on the
+/// following transactions (the chip models see the time pass), without burning instructions.
+pub struct BridgeDelay<'a, L> {
+    client: &'a RefCell<BridgeClient<L>>,
+}
+
+impl<'a, L> BridgeDelay<'a, L> {
+    pub fn new(client: &'a RefCell<BridgeClient<L>>) -> Self {
+        Self { client }
+    }
+}
+
+impl<L: ByteLink> embedded_hal::delay::DelayNs for BridgeDelay<'_, L> {
+    fn delay_ns(&mut self, ns: u32) {
+        if let Ok(mut c) = self.client.try_borrow_mut() {
+            c.t_us = c.t_us.saturating_add(u64::from(ns).div_ceil(1000));
+        }
+    }
+}
+
 /// An I2C bus on the bridge. Several devices share it through `&RefCell<BridgeClient>`.
 pub struct BridgeI2c<'a, L> {
     client: &'a RefCell<BridgeClient<L>>,

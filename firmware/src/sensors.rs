@@ -12,6 +12,8 @@ pub struct SensorFault {
 }
 
 pub trait SensorSuite {
+    /// Advance non-blocking work (conversions, scans); called every scheduler tick.
+    fn service(&mut self, _t_us: u64) {}
     /// One IMU sample (body FRD, SI units) for time `t_us`.
     fn read_imu(&mut self, t_us: u64) -> Result<ImuSample, SensorFault>;
     /// Raw counts (0/45/90/135 deg) of polarization unit `unit`.

@@ -8,6 +8,7 @@ pub mod compass;
 pub mod fgo;
 pub mod filter;
 pub mod link;
+pub mod sim;
 pub mod record;
 pub mod export;
 pub mod report;

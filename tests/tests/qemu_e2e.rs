@@ -84,6 +84,8 @@ fn commands_are_acknowledged_and_corrupt_frames_reported() {
 
 #[test]
 fn runs_are_deterministic() {
+    // Everything but the measured CPU load (which includes the wall-clock wait for the host's
+    // bus bridge) must be identical between two runs of the same ELF.
     let dir = std::env::temp_dir().join(format!("subnav-det-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut recs = vec![];
@@ -93,9 +95,18 @@ fn runs_are_deterministic() {
         cfg.record = Some(p.clone());
         let (_, _, outcome) = collect(&cfg);
         assert!(outcome.success());
-        recs.push(std::fs::read(&p).unwrap());
+        let bytes = std::fs::read(&p).unwrap();
+        let mut dec = subnav_host::link::UplinkDecoder::new();
+        let mut msgs = vec![];
+        dec.feed(&bytes, |e| if let LinkEvent::Message(mut m) = e {
+            if let Uplink::Health(h) = &mut m {
+                h.cpu_load_permille = 0;
+            }
+            msgs.push(format!("{m:?}"));
+        });
+        recs.push(msgs);
     }
-    assert!(!recs[0].is_empty());
+    assert!(recs[0].len() > 10);
     assert_eq!(recs[0], recs[1], "two runs of the same ELF gave different telemetry");
     let _ = std::fs::remove_dir_all(&dir);
 }

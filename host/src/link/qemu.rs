@@ -1,9 +1,10 @@
 //! Run the firmware ELF in QEMU (`mps2-an386`) and stream its telemetry and logs to the host.
 //!
 //! - UART0 (telemetry + commands) is connected to a TCP socket this process listens on.
-//! - UART1 carries the sensor-bus bridge (`subnav_shared::bridge`): each I2C/SPI transaction of
-//!   the firmware is answered by a [`BusHandler`] (the chip models); without one, every
-//!   transaction gets a NACK, as on a bus with nothing attached.
+//! - The sensor-bus bridge (`subnav_shared::bridge`) runs over two named pipes the firmware opens
+//!   through semihosting (synchronous: no virtual time passes while the host answers). Each
+//!   I2C/SPI transaction is answered by a [`BusHandler`] (the chip models); with
+//!   [`NothingAttached`], every transaction gets a NACK, as on a bus with nothing attached.
 //! - Semihosting carries the defmt log stream (QEMU's stdout) and the exit status.
 //! - `-icount shift=N,align=off,sleep=off` makes virtual time follow executed instructions:
 //!   the same ELF and options give the same telemetry on any machine at any host speed.
@@ -33,15 +34,18 @@ impl BusHandler for NothingAttached {
     }
 }
 
-/// Serve bridge requests on `stream` until it closes. Returns the handler and the number of
-/// transactions served (and corrupt request frames seen).
-fn serve_bridge(mut stream: TcpStream, mut handler: Box<dyn BusHandler>) -> (Box<dyn BusHandler>, u64, u64) {
+/// Serve bridge requests from the request pipe until it closes. Returns the handler and the
+/// number of transactions served (and corrupt request frames seen).
+fn serve_bridge(req: PathBuf, resp: PathBuf, mut handler: Box<dyn BusHandler>) -> (Box<dyn BusHandler>, u64, u64) {
+    let (mut served, mut corrupt) = (0u64, 0u64);
+    // Same order as the firmware: request pipe first, then the response pipe.
+    let Ok(mut rx) = std::fs::File::open(&req) else { return (handler, served, corrupt) };
+    let Ok(mut tx) = std::fs::OpenOptions::new().write(true).open(&resp) else { return (handler, served, corrupt) };
     let mut dec = FrameDecoder::<MAX_REQUEST_FRAME>::new();
     let mut buf = [0u8; 4096];
     let mut out = [0u8; MAX_RESPONSE_FRAME];
-    let (mut served, mut corrupt) = (0u64, 0u64);
     loop {
-        let n = match stream.read(&mut buf) {
+        let n = match rx.read(&mut buf) {
             Ok(0) | Err(_) => return (handler, served, corrupt),
             Ok(n) => n,
         };
@@ -53,13 +57,21 @@ fn serve_bridge(mut stream: TcpStream, mut handler: Box<dyn BusHandler>) -> (Box
                     let resp = handler.handle(&req);
                     served += 1;
                     let Ok(frame) = wire::encode(&resp, &mut out) else { continue };
-                    if stream.write_all(frame).is_err() {
+                    if tx.write_all(frame).is_err() {
                         return (handler, served, corrupt);
                     }
                 }
             }
         }
     }
+}
+
+/// Release a bridge thread still blocked opening the pipes (the firmware never opened them).
+fn unblock_pipes(req: &std::path::Path, resp: &std::path::Path) {
+    use std::os::unix::fs::OpenOptionsExt;
+    const O_NONBLOCK: i32 = 0o4000; // Linux
+    let _ = std::fs::OpenOptions::new().write(true).custom_flags(O_NONBLOCK).open(req);
+    let _ = std::fs::OpenOptions::new().read(true).custom_flags(O_NONBLOCK).open(resp);
 }
 
 fn accept_from(listener: &TcpListener, child: &mut Child, what: &str) -> Result<TcpStream> {
@@ -243,9 +255,6 @@ pub fn run_with_bus(
     let table = DefmtTable::from_elf_path(&cfg.elf)?;
     let listener = TcpListener::bind("127.0.0.1:0").context("binding a local port for the emulated UART")?;
     let port = listener.local_addr()?.port();
-    let bus_listener = TcpListener::bind("127.0.0.1:0").context("binding a local port for the sensor-bus bridge")?;
-    let bus_port = bus_listener.local_addr()?.port();
-
     let mut args = vec!["arg=subnav".to_string()];
     if let Some(ms) = cfg.run_ms {
         args.push(format!("arg=run_ms={ms}"));
@@ -253,12 +262,22 @@ pub fn run_with_bus(
     if let Some(ms) = cfg.panic_at_ms {
         args.push(format!("arg=panic_at_ms={ms}"));
     }
+    let pipe_dir = std::env::temp_dir().join(format!("subnav-bridge-{}-{port}", std::process::id()));
+    std::fs::create_dir_all(&pipe_dir).with_context(|| format!("creating {}", pipe_dir.display()))?;
+    let (req_pipe, resp_pipe) = (pipe_dir.join("req"), pipe_dir.join("resp"));
+    for p in [&req_pipe, &resp_pipe] {
+        let st = Command::new("mkfifo").arg(p).status().context("running mkfifo")?;
+        if !st.success() {
+            bail!("mkfifo {} failed", p.display());
+        }
+    }
+    args.push(format!("arg=bus_req={}", req_pipe.display()));
+    args.push(format!("arg=bus_resp={}", resp_pipe.display()));
+
     let mut cmd = Command::new(&cfg.qemu);
     cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
         .arg("-serial")
         .arg(format!("tcp:127.0.0.1:{port}"))
-        .arg("-serial")
-        .arg(format!("tcp:127.0.0.1:{bus_port}"))
         .arg("-semihosting-config")
         .arg(format!("enable=on,target=native,{}", args.join(",")))
         .arg("-icount")
@@ -273,12 +292,11 @@ pub fn run_with_bus(
     })?;
     let mut child = KillOnDrop(child);
 
-    // QEMU connects to us as soon as it has parsed its options (UART0 first, then UART1).
+    // QEMU connects to us as soon as it has parsed its options.
     listener.set_nonblocking(true)?;
-    bus_listener.set_nonblocking(true)?;
+    let (rq, rs) = (req_pipe.clone(), resp_pipe.clone());
+    let bridge = std::thread::spawn(move || serve_bridge(rq, rs, bus));
     let stream = accept_from(&listener, &mut child.0, "UART")?;
-    let bus_stream = accept_from(&bus_listener, &mut child.0, "sensor-bus bridge UART")?;
-    let bridge = std::thread::spawn(move || serve_bridge(bus_stream, bus));
     let mut downlink = Downlinker { tap: cfg.raw_tap.clone(), stream: stream.try_clone()?, next_seq: 1 };
 
     let (tx, rx) = mpsc::channel();
@@ -352,9 +370,13 @@ pub fn run_with_bus(
         child.0.wait()?.code()
     };
     drop(child);
+    if !bridge.is_finished() {
+        unblock_pipes(&req_pipe, &resp_pipe);
+    }
     let stderr = stderr_handle.and_then(|h| h.join().ok()).unwrap_or_default();
     let (handler, bus_transactions, bus_corrupt_requests) =
         bridge.join().map_err(|_| anyhow::anyhow!("the sensor-bus bridge thread panicked"))?;
+    let _ = std::fs::remove_dir_all(&pipe_dir);
     let outcome = QemuOutcome {
         exit_code,
         timed_out,

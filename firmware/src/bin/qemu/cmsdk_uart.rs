@@ -22,7 +22,17 @@ pub struct Uart {
 impl Uart {
     /// UART0 at 0x4000_4000, enabled for TX and RX.
     pub fn uart0() -> Self {
-        let u = Self { base: 0x4000_4000 };
+        Self::at(0x4000_4000)
+    }
+
+    /// UART1 at 0x4000_5000 (the sensor-bus bridge).
+    #[allow(dead_code)]
+    pub fn uart1() -> Self {
+        Self::at(0x4000_5000)
+    }
+
+    fn at(base: usize) -> Self {
+        let u = Self { base };
         // SAFETY: fixed, valid MMIO addresses of mps2-an386's UART0; only this owner touches them.
         unsafe {
             write_volatile((u.base + BAUDDIV) as *mut u32, 16);
@@ -42,6 +52,12 @@ impl Uart {
             // SAFETY: see `uart0`.
             unsafe { write_volatile((self.base + DATA) as *mut u32, u32::from(b)) };
         }
+    }
+
+    /// One received byte, if waiting.
+    #[allow(dead_code)]
+    pub fn read_byte(&mut self) -> Option<u8> {
+        (self.reg(STATE) & STATE_RX_FULL != 0).then(|| (self.reg(DATA) & 0xff) as u8)
     }
 
     /// Read the bytes that are waiting (the CMSDK UART holds one).

@@ -1,12 +1,20 @@
 //! Board: QEMU `mps2-an386` (Cortex-M4F). Thin glue around [`subnav_firmware::App`]:
 //! - telemetry and commands on CMSDK UART0 (0x4000_4000), which QEMU connects to a socket/file;
+//! - the sensors (ICM-42688-P on SPI, 4x ADS1115 and MS5837 on I2C) through the host bridge
+//!   (two named pipes opened over semihosting, see `semihost_pipe.rs`): the same drivers as on
+//!   the STM32 board, only the bus implementation differs;
 //! - defmt logs and the exit status over semihosting;
 //! - time from SysTick (25 MHz core clock, 1 kHz tick); with `-icount ... sleep=off` QEMU's
 //!   virtual time follows executed instructions, so a run is repeatable bit for bit.
 //!
+//! The scheduler runs on *logical* time: tick k is processed as t = k ms, after the hardware
+//! tick k has happened. Time spent waiting for the host bridge therefore changes nothing in the
+//! telemetry, and a run is repeatable (only the measured CPU load depends on the host).
+//!
 //! Run options come from the semihosting command line (`-semihosting-config arg=...`):
 //! `run_ms=N` exits successfully after N ms of firmware time; `panic_at_ms=N` panics on purpose
-//! (self-test of the panic path: the run must fail).
+//! (self-test of the panic path: the run must fail); `bus_req=PATH bus_resp=PATH` are the
+//! bridge's pipes (without them the board runs without sensors).
 #![no_std]
 #![no_main]
 
@@ -16,11 +24,31 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::debug;
 use defmt_semihosting as _;
+use core::cell::RefCell;
+
+/// The bridge link, or nothing (no sensors).
+struct PipeLink(Option<SemihostPipe>);
+
+impl ByteLink for PipeLink {
+    fn write_all(&mut self, bytes: &[u8]) {
+        if let Some(p) = self.0.as_mut() {
+            p.write_all(bytes);
+        }
+    }
+    fn read_byte(&mut self) -> Option<u8> {
+        self.0.as_mut().and_then(|p| p.read_byte())
+    }
+}
+
+use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
+use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
 use subnav_shared::wire::Board;
 
 mod cmsdk_uart;
+mod semihost_pipe;
 use cmsdk_uart::Uart;
+use semihost_pipe::SemihostPipe;
 
 const CORE_HZ: u32 = 25_000_000;
 const TICK_HZ: u32 = 1_000;
@@ -74,6 +102,16 @@ defmt::timestamp!("{=u64:us}", {
 struct RunOptions {
     run_ms: Option<u64>,
     panic_at_ms: Option<u64>,
+    /// Paths of the bridge pipes (NUL-terminated copies), if given.
+    bus_req: Option<([u8; 200], usize)>,
+    bus_resp: Option<([u8; 200], usize)>,
+}
+
+fn path_arg(v: &[u8]) -> Option<([u8; 200], usize)> {
+    let mut p = [0u8; 200];
+    // leave room for the terminating NUL
+    p.get_mut(..v.len()).filter(|_| v.len() < 200)?.copy_from_slice(v);
+    Some((p, v.len() + 1))
 }
 
 fn parse_u64(s: &[u8]) -> Option<u64> {
@@ -86,8 +124,8 @@ fn parse_u64(s: &[u8]) -> Option<u64> {
 }
 
 fn run_options() -> RunOptions {
-    let mut opts = RunOptions { run_ms: None, panic_at_ms: None };
-    let mut buf = [0u8; 256];
+    let mut opts = RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None };
+    let mut buf = [0u8; 640];
     // SYS_GET_CMDLINE (0x15): parameter block [buffer address, buffer length]; the host writes
     // a NUL-terminated command line and updates the length.
     let mut block = [buf.as_mut_ptr() as usize, buf.len()];
@@ -102,6 +140,10 @@ fn run_options() -> RunOptions {
             opts.run_ms = parse_u64(v);
         } else if let Some(v) = word.strip_prefix(b"panic_at_ms=") {
             opts.panic_at_ms = parse_u64(v);
+        } else if let Some(v) = word.strip_prefix(b"bus_req=") {
+            opts.bus_req = path_arg(v);
+        } else if let Some(v) = word.strip_prefix(b"bus_resp=") {
+            opts.bus_resp = path_arg(v);
         }
     }
     opts
@@ -121,33 +163,63 @@ fn main() -> ! {
     let mut clock = Clock { last_ms: 0, high: 0 };
     let mut app = App::new(Board::QemuMps2An386);
 
-    defmt::info!("board qemu-mps2-an386, run_ms={=?}", opts.run_ms);
-    app.boot(clock.now_us(), &mut uart);
+    let pipe = match (&opts.bus_req, &opts.bus_resp) {
+        (Some((req, rl)), Some((resp, sl))) => SemihostPipe::open(req.get(..*rl).unwrap_or(&[]), resp.get(..*sl).unwrap_or(&[])),
+        _ => None,
+    };
+    defmt::info!("board qemu-mps2-an386, run_ms={=?}, sensor bridge={=bool}", opts.run_ms, pipe.is_some());
+    app.boot(0, &mut uart);
+
+    let has_bridge = pipe.is_some();
+    let bridge = RefCell::new(BridgeClient::new(PipeLink(pipe)));
+    // Reads block until the host answers; `None` means the pipe broke: fail fast (BusTimeout).
+    bridge.borrow_mut().max_polls = 4;
+    let mut suite = has_bridge.then(|| {
+        let mut delay = BridgeDelay::new(&bridge);
+        let suite = HeadSuite::new(
+            BridgeSpi::new(&bridge, 0, 0),
+            core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
+            BridgeI2c::new(&bridge, 0),
+            &mut delay,
+        );
+        defmt::info!("sensor init: imu {=?} polarization {=?} depth {=?}", suite.init.imu.is_none(), suite.init.polarization.map(|p| p.is_none()), suite.init.depth.is_none());
+        suite
+    });
 
     let mut rx = [0u8; 64];
+    let mut next_tick_ms: u64 = 0;
     let mut window_start_us = clock.now_us();
     let mut busy_us: u64 = 0;
     loop {
         let wake_us = clock.now_us();
-        let n = uart.read_available(&mut rx);
-        if let Some(bytes) = rx.get(..n) {
-            if !bytes.is_empty() {
-                app.on_downlink_bytes(wake_us, bytes, &mut uart);
+        let hw_ms = wake_us / 1000;
+        while next_tick_ms <= hw_ms {
+            let t_us = next_tick_ms * 1000;
+            next_tick_ms += 1;
+            bridge.borrow_mut().set_time(t_us);
+            let n = uart.read_available(&mut rx);
+            if let Some(bytes) = rx.get(..n) {
+                if !bytes.is_empty() {
+                    app.on_downlink_bytes(t_us, bytes, &mut uart);
+                }
             }
-        }
-        if app.poll(wake_us, &mut uart) == BoardRequest::Reboot {
-            defmt::info!("reboot requested");
-            cortex_m::peripheral::SCB::sys_reset();
-        }
-        if let Some(t) = opts.panic_at_ms {
-            if wake_us >= t * 1000 {
-                panic!("injected panic at {} ms (panic_at_ms self-test)", t);
+            if let Some(s) = suite.as_mut() {
+                app.sensor_tick(t_us, s, &mut uart);
             }
-        }
-        if let Some(t) = opts.run_ms {
-            if wake_us >= t * 1000 {
-                defmt::info!("run_ms reached, exiting");
-                debug::exit(debug::EXIT_SUCCESS);
+            if app.poll(t_us, &mut uart) == BoardRequest::Reboot {
+                defmt::info!("reboot requested");
+                cortex_m::peripheral::SCB::sys_reset();
+            }
+            if let Some(t) = opts.panic_at_ms {
+                if t_us >= t * 1000 {
+                    panic!("injected panic at {} ms (panic_at_ms self-test)", t);
+                }
+            }
+            if let Some(t) = opts.run_ms {
+                if t_us >= t * 1000 {
+                    defmt::info!("run_ms reached, exiting");
+                    debug::exit(debug::EXIT_SUCCESS);
+                }
             }
         }
         let done_us = clock.now_us();

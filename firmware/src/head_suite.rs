@@ -1,0 +1,162 @@
+//! The sensor head's [`SensorSuite`] on top of the three drivers, for any buses: the STM32
+//! board's SPI/I2C peripherals or the QEMU board's host bridge. The ADC scan and the depth
+//! conversions are non-blocking state machines advanced by [`SensorSuite::service`] every tick;
+//! the read calls return the latest completed results.
+//!
+//! Axes: the IMU chip axes are the body FRD axes (mounting documented in `host/src/chips`).
+
+use embedded_hal::delay::DelayNs;
+use embedded_hal::i2c::I2c;
+use embedded_hal::spi::SpiDevice;
+use subnav_shared::wire::{DepthSample, FaultKind, FaultSource, ImuSample};
+
+use crate::drivers::ads1115::{AdcConfig, PolarizationAdcs, UNITS};
+use crate::drivers::icm42688::{self, Icm42688};
+use crate::drivers::ms5837::{DepthParams, Ms5837};
+use crate::drivers::{BusErrorKind, Error, StuckDetector};
+use crate::sensors::{SensorFault, SensorSuite};
+
+/// A polarization scan older than this is not used (µs).
+const SCAN_MAX_AGE_US: u64 = 300_000;
+/// A depth reading older than this is not used (µs).
+const DEPTH_MAX_AGE_US: u64 = 300_000;
+/// Identical raw IMU samples in a row that mean a stuck axis.
+const STUCK_LIMIT: u16 = 50;
+
+/// Results of bringing the sensors up: `None` = ok, else the fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InitReport {
+    pub imu: Option<FaultKind>,
+    pub polarization: [Option<FaultKind>; UNITS],
+    pub depth: Option<FaultKind>,
+}
+
+pub struct HeadSuite<SPI: SpiDevice, I2C: I2c> {
+    imu: Icm42688<SPI>,
+    imu_ready: bool,
+    imu_stuck: StuckDetector<6>,
+    adcs: PolarizationAdcs<I2C>,
+    scan: Option<(u64, [[i16; 4]; UNITS], [Option<FaultKind>; UNITS])>,
+    depth: Ms5837<I2C>,
+    depth_ready: bool,
+    last_depth: Option<(u64, DepthSample)>,
+    depth_error: Option<FaultKind>,
+    pub init: InitReport,
+}
+
+fn kind<E: BusErrorKind>(e: &Error<E>) -> FaultKind {
+    e.fault_kind()
+}
+
+impl<SPI, I2C> HeadSuite<SPI, I2C>
+where
+    SPI: SpiDevice,
+    SPI::Error: BusErrorKind,
+    I2C: I2c,
+    I2C::Error: BusErrorKind,
+{
+    /// Bring up all sensors; a sensor that fails stays in the suite and is retried on use.
+    pub fn new(spi: SPI, adc_buses: [I2C; UNITS], depth_bus: I2C, delay: &mut impl DelayNs) -> Self {
+        let mut imu = Icm42688::new(spi, icm42688::Config::default());
+        let imu_init = imu.init(delay);
+        let mut adcs = PolarizationAdcs::new(adc_buses, AdcConfig::default());
+        let adc_init = adcs.init();
+        let mut depth = Ms5837::new(depth_bus, DepthParams::default());
+        let depth_init = depth.init(delay);
+        let init = InitReport {
+            imu: imu_init.as_ref().err().map(kind),
+            polarization: core::array::from_fn(|u| adc_init.get(u).and_then(|r| r.as_ref().err()).map(kind)),
+            depth: depth_init.as_ref().err().map(kind),
+        };
+        Self {
+            imu,
+            imu_ready: imu_init.is_ok(),
+            imu_stuck: StuckDetector::new(STUCK_LIMIT),
+            adcs,
+            scan: None,
+            depth,
+            depth_ready: depth_init.is_ok(),
+            last_depth: None,
+            depth_error: None,
+            init,
+        }
+    }
+}
+
+impl<SPI, I2C> SensorSuite for HeadSuite<SPI, I2C>
+where
+    SPI: SpiDevice,
+    SPI::Error: BusErrorKind,
+    I2C: I2c,
+    I2C::Error: BusErrorKind,
+{
+    fn service(&mut self, t_us: u64) {
+        if let Some(scan) = self.adcs.poll() {
+            let errors = core::array::from_fn(|u| {
+                let e = scan.errors.get(u).and_then(|e| e.as_ref()).map(kind);
+                e.or_else(|| (scan.saturated.get(u).copied().unwrap_or(0) != 0).then_some(FaultKind::Saturated))
+            });
+            self.scan = Some((t_us, scan.counts, errors));
+        }
+        if self.depth_ready {
+            match self.depth.poll(t_us) {
+                Ok(Some(r)) => {
+                    self.depth_error = None;
+                    self.last_depth = Some((t_us, DepthSample { t_us, pressure_pa: r.pressure_pa, temp_c: r.temp_c, depth_m: r.depth_m }));
+                }
+                Ok(None) => {}
+                Err(e) => self.depth_error = Some(kind(&e)),
+            }
+        }
+    }
+
+    fn read_imu(&mut self, t_us: u64) -> Result<ImuSample, SensorFault> {
+        let fault = |kind| SensorFault { source: FaultSource::Imu, kind };
+        if !self.imu_ready {
+            // Retry the bring-up (e.g. after a bus glitch at boot).
+            self.imu_ready = self.imu.configure(self.imu.config()).is_ok() && matches!(self.imu.who_am_i(), Ok(0x47));
+            if !self.imu_ready {
+                return Err(fault(FaultKind::IdentityMismatch));
+            }
+        }
+        let r = self.imu.read().map_err(|e| fault(kind(&e)))?;
+        if r.any_saturated() {
+            return Err(fault(FaultKind::Saturated));
+        }
+        let raw = [r.raw.accel[0], r.raw.accel[1], r.raw.accel[2], r.raw.gyro[0], r.raw.gyro[1], r.raw.gyro[2]].map(i32::from);
+        if self.imu_stuck.update(raw) != 0 {
+            return Err(fault(FaultKind::Stuck));
+        }
+        Ok(ImuSample { t_us, gyro_radps: r.gyro_radps, accel_mps2: r.accel_mps2, temp_c: r.temp_c })
+    }
+
+    fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
+        let fault = |kind| SensorFault { source: FaultSource::Polarization { unit }, kind };
+        let Some((t_scan, counts, errors)) = &self.scan else { return Err(fault(FaultKind::BusTimeout)) };
+        if t_us.saturating_sub(*t_scan) > SCAN_MAX_AGE_US {
+            return Err(fault(FaultKind::BusTimeout));
+        }
+        if let Some(Some(k)) = errors.get(usize::from(unit)) {
+            return Err(fault(*k));
+        }
+        counts.get(usize::from(unit)).copied().ok_or(fault(FaultKind::BusOther))
+    }
+
+    fn read_depth(&mut self, t_us: u64, water_density_kgm3: f32) -> Result<DepthSample, SensorFault> {
+        let fault = |kind| SensorFault { source: FaultSource::Depth, kind };
+        self.depth.params.water_density_kgm3 = water_density_kgm3;
+        if !self.depth_ready {
+            return Err(fault(self.init.depth.unwrap_or(FaultKind::BusOther)));
+        }
+        if let Some(k) = self.depth_error {
+            return Err(fault(k));
+        }
+        match self.last_depth {
+            Some((t, mut s)) if t_us.saturating_sub(t) <= DEPTH_MAX_AGE_US => {
+                s.depth_m = self.depth.params.depth_m(s.pressure_pa);
+                Ok(s)
+            }
+            _ => Err(fault(FaultKind::BusTimeout)),
+        }
+    }
+}
