@@ -73,7 +73,12 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             let cfg = sim::DiveConfig { duration_s, ..sim::DiveConfig::default() };
             let dive = sim::generate(&cfg, seed);
             let t0 = dive.truth.first().context("empty dive")?;
-            let init = replay::LogInit { t_us: t0.t_us, pos_ned_m: t0.pos_ned_m.map(|v| v as f32), yaw_rad: dive.init_yaw_rad as f32 };
+            let init = replay::LogInit {
+                t_us: t0.t_us,
+                pos_ned_m: t0.pos_ned_m.map(|v| v as f32),
+                yaw_rad: dive.init_yaw_rad as f32,
+                vel_ned_mps: t0.vel_ned_mps.map(|v| v as f32),
+            };
             std::fs::write(&out, replay::write_log(Some(init), &dive.events)).with_context(|| format!("writing {}", out.display()))?;
             if let Some(p) = truth {
                 let mut s = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");

@@ -2,7 +2,7 @@
 //!
 //! Log format: one event per line, `#` comments and blank lines ignored, times in seconds:
 //! ```text
-//! t_s,init,n_m,e_m,d_m,yaw_rad          (optional, first: initial position and heading)
+//! t_s,init,n_m,e_m,d_m,yaw_rad[,vn,ve,vd] (optional, first: initial position, heading, NED velocity)
 //! t_s,imu,gx,gy,gz,ax,ay,az             (rad/s, m/s^2, FRD body)
 //! t_s,heading,heading_rad[,sigma_rad]
 //! t_s,depth,depth_m[,sigma_m]
@@ -28,6 +28,7 @@ pub struct LogInit {
     pub t_us: u64,
     pub pos_ned_m: [f32; 3],
     pub yaw_rad: f32,
+    pub vel_ned_mps: [f32; 3],
 }
 
 fn t_us(s: &str) -> anyhow::Result<u64> {
@@ -63,8 +64,12 @@ pub fn parse_log(text: &str) -> anyhow::Result<(Option<LogInit>, Vec<Event>)> {
             let v = &f[2..];
             Ok(Some(match f[1].trim() {
                 "init" => {
-                    let x = nums(v, 4, 4)?;
-                    init = Some(LogInit { t_us: t, pos_ned_m: [x[0], x[1], x[2]], yaw_rad: x[3] });
+                    let x = nums(v, 4, 7)?;
+                    if x.len() != 4 && x.len() != 7 {
+                        bail!("init takes n,e,d,yaw or n,e,d,yaw,vn,ve,vd");
+                    }
+                    let vel = if x.len() == 7 { [x[4], x[5], x[6]] } else { [0.0; 3] };
+                    init = Some(LogInit { t_us: t, pos_ned_m: [x[0], x[1], x[2]], yaw_rad: x[3], vel_ned_mps: vel });
                     return Ok(None);
                 }
                 "imu" => {
@@ -106,7 +111,8 @@ pub fn write_log(init: Option<LogInit>, events: &[Event]) -> String {
     let mut s = String::from("# subnav sensor log: t_s,kind,values (see `subnav filter replay --help`)\n");
     let ts = |t: u64| t as f64 * 1e-6;
     if let Some(i) = init {
-        let _ = writeln!(s, "{},init,{},{},{},{}", ts(i.t_us), i.pos_ned_m[0], i.pos_ned_m[1], i.pos_ned_m[2], i.yaw_rad);
+        let v = i.vel_ned_mps;
+        let _ = writeln!(s, "{},init,{},{},{},{},{},{},{}", ts(i.t_us), i.pos_ned_m[0], i.pos_ned_m[1], i.pos_ned_m[2], i.yaw_rad, v[0], v[1], v[2]);
     }
     for ev in events {
         let _ = match *ev {
@@ -152,8 +158,8 @@ pub struct Replay {
 /// Run a log through the filter; an estimate row every `out_every_s` of IMU time.
 pub fn replay(cfg: NavConfig, init: Option<LogInit>, events: &[Event], out_every_s: f64) -> anyhow::Result<Replay> {
     let first_t = events.first().map(|e| e.t_us()).unwrap_or(0);
-    let init = init.unwrap_or(LogInit { t_us: first_t, pos_ned_m: [0.0; 3], yaw_rad: 0.0 });
-    let mut nav = start(cfg, init.t_us, init.pos_ned_m, [0.0; 3], init.yaw_rad)?;
+    let init = init.unwrap_or(LogInit { t_us: first_t, pos_ned_m: [0.0; 3], yaw_rad: 0.0, vel_ned_mps: [0.0; 3] });
+    let mut nav = start(cfg, init.t_us, init.pos_ned_m, init.vel_ned_mps, init.yaw_rad)?;
     let mut counts = EventCounts::default();
     let mut rows = Vec::new();
     let step_us = (out_every_s.max(1e-6) * 1e6) as u64;
@@ -218,7 +224,8 @@ mod tests {
     fn log_round_trips_and_replays() {
         let cfg = DiveConfig { duration_s: 20.0, ..DiveConfig::default() };
         let dive = generate(&cfg, 7);
-        let init = LogInit { t_us: 0, pos_ned_m: [0.0, 0.0, 10.0], yaw_rad: dive.init_yaw_rad as f32 };
+        let t0 = dive.truth[0];
+        let init = LogInit { t_us: 0, pos_ned_m: [0.0, 0.0, 10.0], yaw_rad: dive.init_yaw_rad as f32, vel_ned_mps: t0.vel_ned_mps.map(|v| v as f32) };
         let text = write_log(Some(init), &dive.events);
         let (init2, events2) = parse_log(&text).unwrap();
         assert_eq!(init2, Some(init));
