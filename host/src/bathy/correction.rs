@@ -22,27 +22,31 @@ use nalgebra::{DMatrix, DVector, Matrix2};
 
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct DriftConfig {
-    /// Position random-walk variance per metre travelled (m^2/m).
+    /// Position random-walk variance per metre travelled (m^2/m), for the graph's continuity
+    /// rows and search windows (conservative: the compass bias makes drift systematic).
     pub q_dist_m2_per_m: f64,
+    /// The same for the spring stiffness, where only the ratio between steps matters: the DR's
+    /// per-metre drift in bottom lock against its reported velocity sigma.
+    pub q_dist_spring_m2_per_m: f64,
     /// Weight of the weak-association information in the spring stiffness (0 = off).
     pub assoc_weight: f64,
 }
 
 impl Default for DriftConfig {
     fn default() -> Self {
-        Self { q_dist_m2_per_m: 0.01, assoc_weight: 1.0 }
+        Self { q_dist_m2_per_m: 0.01, q_dist_spring_m2_per_m: 0.001, assoc_weight: 1.0 }
     }
 }
 
 /// Variance of each step's DR error (`out[0] = 0`).
-pub fn step_variances(nav: &[NavSample], cfg: &DriftConfig) -> Vec<f64> {
+pub fn step_variances(nav: &[NavSample], q_dist_m2_per_m: f64) -> Vec<f64> {
     let mut v = vec![0.0; nav.len()];
     for i in 1..nav.len() {
         let (a, b) = (&nav[i - 1], &nav[i]);
         let d = ((b.north_m - a.north_m).powi(2) + (b.east_m - a.east_m).powi(2)).sqrt();
         let dt = (b.t_s - a.t_s).abs();
         let s = if b.vel_sigma_mps.is_finite() { b.vel_sigma_mps.max(0.0) } else { 0.0 };
-        v[i] = cfg.q_dist_m2_per_m * d + (s * dt).powi(2) + 1e-9;
+        v[i] = q_dist_m2_per_m * d + (s * dt).powi(2) + 1e-9;
     }
     v
 }

@@ -38,8 +38,8 @@ impl PipelineConfig {
             drift: DriftConfig::default(),
             vote: VoteConfig::default(),
             assoc: AssocConfig::default(),
-            min_search_m: 15.0,
-            max_search_m: 60.0,
+            min_search_m: 0.75 * alt_m,
+            max_search_m: 4.0 * alt_m,
             robust_chi2: 25.0,
             grid_cell_m: cell,
         }
@@ -118,41 +118,72 @@ pub fn run(survey: &Survey, cfg: &PipelineConfig) -> Result<PipelineOutput> {
         .map(|a| a.map_or(0.0, |a| cfg.drift.assoc_weight * a.info.symmetric_eigenvalues().min().max(0.0)))
         .collect();
     let t2 = Instant::now();
-    let step_var = correction::step_variances(nav, &cfg.drift);
+    let step_var = correction::step_variances(nav, cfg.drift.q_dist_m2_per_m);
+    let spring_var = correction::step_variances(nav, cfg.drift.q_dist_spring_m2_per_m);
     let drift = DriftIndex::new(&step_var);
-    let mut attempts = vec![];
-    for a in 0..submaps.len() {
-        for b in a + 2..submaps.len() {
+    // Degraded steps (velocity sigma above twice the survey's median: DVL water track) count as
+    // a velocity bias for the search window; the rest is in the random-walk drift.
+    let mut sig: Vec<f64> = nav.iter().map(|n| n.vel_sigma_mps).filter(|v| v.is_finite()).collect();
+    sig.sort_by(f64::total_cmp);
+    let med = sig.get(sig.len() / 2).copied().unwrap_or(0.0);
+    let mut vel_cum = vec![0.0; nav.len()];
+    for i in 1..nav.len() {
+        let s = if nav[i].vel_sigma_mps.is_finite() && nav[i].vel_sigma_mps > 2.0 * med { nav[i].vel_sigma_mps } else { 0.0 };
+        vel_cum[i] = vel_cum[i - 1] + s * (nav[i].t_s - nav[i - 1].t_s).abs();
+    }
+    // Incremental: submaps are matched in time order against all earlier non-adjacent ones,
+    // searching around the shift predicted by the current solution (as it would run on board),
+    // with a window from the drift accumulated since the last accepted closure.
+    let keys: Vec<usize> = std::iter::once(0).chain(submaps.iter().map(|s| s.key_ping)).collect();
+    let mut key_e = vec![V2::zeros(); keys.len()];
+    let mut attempts: Vec<Attempt> = vec![];
+    let mut last_fix_ping = 0usize;
+    let mut kept_all = vec![];
+    let mut votes_ok: (Vec<usize>, Vec<bool>) = (vec![], vec![]);
+    let mut cand: Vec<(usize, Closure)> = vec![];
+    for b in 0..submaps.len() {
+        key_e[b + 1] = key_e[b];
+        let kb = submaps[b].key_ping;
+        let mut new_match = false;
+        for a in 0..b.saturating_sub(1) {
             let (ga, gb) = (&submaps[a].grid, &submaps[b].grid);
-            let (ka, kb) = (submaps[a].key_ping, submaps[b].key_ping);
-            let radius = (3.0 * drift.between(ka, kb).sqrt() + 10.0).clamp(cfg.min_search_m, cfg.max_search_m);
-            if bbox_overlap_area(ga, gb, radius) < cfg.matching.min_overlap_cells as f64 * ga.cell_m * ga.cell_m {
+            let ka = submaps[a].key_ping;
+            let prior = key_e[b + 1] - key_e[a + 1];
+            // Velocity errors (water track: unknown current) act as biases, so they add up
+            // linearly in the window; the per-metre drift as a random walk.
+            let sys = (vel_cum[kb] - vel_cum[last_fix_ping]).max(0.0);
+            let radius = (2.0 * sys + 3.0 * drift.between(last_fix_ping, kb).sqrt() + 10.0).clamp(cfg.min_search_m, cfg.max_search_m);
+            if bbox_overlap_area(ga, gb, prior, radius) < cfg.matching.min_overlap_cells as f64 * ga.cell_m * ga.cell_m {
                 continue;
             }
-            let result = matching::match_grids(ga, gb, V2::zeros(), radius, &cfg.matching);
+            let result = matching::match_grids(ga, gb, prior, radius, &cfg.matching);
             if matches!(result, Err(Rejection::NoOverlap { .. })) {
                 continue;
             }
+            if let Ok(m) = &result {
+                cand.push((attempts.len(), Closure { a: a + 1, b: b + 1, key_a: ka, key_b: kb, shift: m.shift(), cov: m.cov2() }));
+                new_match = true;
+            }
             attempts.push(Attempt { a, b, key_a: ka, key_b: kb, radius_m: radius, result, votes: 0, voted: false, kept: false });
+        }
+        if new_match || b + 1 == submaps.len() {
+            let closures: Vec<Closure> = cand.iter().map(|c| c.1.clone()).collect();
+            votes_ok = correction::vote(&closures, &drift, &cfg.vote);
+            let voted: Vec<Closure> = closures.iter().zip(&votes_ok.1).filter(|(_, k)| **k).map(|(c, _)| c.clone()).collect();
+            let Some((e, kept)) = correction::solve_robust(&keys, &voted, &drift, cfg.robust_chi2) else {
+                bail!("global least squares failed (singular system)");
+            };
+            if voted.iter().zip(&kept).any(|(c, k)| *k && c.b == b + 1) {
+                last_fix_ping = kb;
+            }
+            key_e = e;
+            kept_all = kept;
         }
     }
     let t3 = Instant::now();
-    let keys: Vec<usize> = std::iter::once(0).chain(submaps.iter().map(|s| s.key_ping)).collect();
-    let cand: Vec<(usize, Closure)> = attempts
-        .iter()
-        .enumerate()
-        .filter_map(|(i, at)| {
-            let m = at.result.as_ref().ok()?;
-            Some((i, Closure { a: at.a + 1, b: at.b + 1, key_a: at.key_a, key_b: at.key_b, shift: m.shift(), cov: m.cov2() }))
-        })
-        .collect();
-    let closures: Vec<Closure> = cand.iter().map(|c| c.1.clone()).collect();
-    let (votes, ok) = correction::vote(&closures, &drift, &cfg.vote);
-    let voted: Vec<Closure> = closures.iter().zip(&ok).filter(|(_, k)| **k).map(|(c, _)| c.clone()).collect();
-    let Some((key_offsets, kept)) = correction::solve_robust(&keys, &voted, &drift, cfg.robust_chi2) else {
-        bail!("global least squares failed (singular system)");
-    };
-    let mut kept_it = kept.iter();
+    let (votes, ok) = votes_ok;
+    let key_offsets = key_e;
+    let mut kept_it = kept_all.iter();
     for ((i, _), (v, o)) in cand.iter().zip(votes.iter().zip(&ok)) {
         attempts[*i].votes = *v;
         attempts[*i].voted = *o;
@@ -162,8 +193,8 @@ pub fn run(survey: &Survey, cfg: &PipelineConfig) -> Result<PipelineOutput> {
     }
     let n = nav.len();
     let offsets_uniform = correction::distribute(n, &keys, &key_offsets, &step_var, None, Distribution::Uniform);
-    let offsets_spring = correction::distribute(n, &keys, &key_offsets, &step_var, Some(&extra), Distribution::Spring);
-    let offsets_spring_dr_only = correction::distribute(n, &keys, &key_offsets, &step_var, None, Distribution::Spring);
+    let offsets_spring = correction::distribute(n, &keys, &key_offsets, &spring_var, Some(&extra), Distribution::Spring);
+    let offsets_spring_dr_only = correction::distribute(n, &keys, &key_offsets, &spring_var, None, Distribution::Spring);
     let t4 = Instant::now();
     let timing = Timing {
         points_submaps_s: (t1 - t0).as_secs_f64(),
@@ -175,9 +206,10 @@ pub fn run(survey: &Survey, cfg: &PipelineConfig) -> Result<PipelineOutput> {
     Ok(PipelineOutput { submaps, attempts, keys, key_offsets, offsets_uniform, offsets_spring, offsets_spring_dr_only, timing })
 }
 
-fn bbox_overlap_area(a: &Grid, b: &Grid, grow: f64) -> f64 {
-    let (an0, an1) = (a.north0_m, a.north0_m + a.rows as f64 * a.cell_m);
-    let (ae0, ae1) = (a.east0_m, a.east0_m + a.cols as f64 * a.cell_m);
+/// Area of a's bounding box moved by `shift` that falls in b's box grown by `grow`.
+fn bbox_overlap_area(a: &Grid, b: &Grid, shift: V2, grow: f64) -> f64 {
+    let (an0, an1) = (a.north0_m + shift.x, a.north0_m + shift.x + a.rows as f64 * a.cell_m);
+    let (ae0, ae1) = (a.east0_m + shift.y, a.east0_m + shift.y + a.cols as f64 * a.cell_m);
     let (bn0, bn1) = (b.north0_m - grow, b.north0_m + b.rows as f64 * b.cell_m + grow);
     let (be0, be1) = (b.east0_m - grow, b.east0_m + b.cols as f64 * b.cell_m + grow);
     (an1.min(bn1) - an0.max(bn0)).max(0.0) * (ae1.min(be1) - ae0.max(be0)).max(0.0)

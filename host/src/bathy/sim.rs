@@ -74,7 +74,7 @@ impl SimConfig {
         Self::with(terrain, wps)
     }
 
-    /// A small survey (a few minutes) for tests: `lines` lines of `len` m, `sp` m apart, at 8 m
+    /// A small survey (some minutes) for tests: `lines` lines of `len` m, `sp` m apart, at 20 m
     /// altitude, plus one cross line.
     pub fn small(lines: usize, len: f64, sp: f64) -> Self {
         let mut wps = vec![];
@@ -92,20 +92,9 @@ impl SimConfig {
         let last = wps.last().copied().unwrap_or((0.0, 0.0));
         wps.push((0.5 * len, last.1));
         wps.push((0.5 * len, if last.1 > 0.5 * emax { -20.0 } else { emax + 20.0 }));
-        let mut t = TerrainConfig::area((-70.0, len + 70.0), (-70.0, emax + 70.0));
-        t.cell_m = 0.5;
-        t.fractal_amp_m = 2.5;
-        t.fractal_wavelength_m = 120.0;
-        t.base_depth_m = 25.0;
-        t.rocks = 60;
-        t.ridges = 2;
-        let mut c = Self::with(t, wps);
-        c.altitude_m = 8.0;
-        c.beams = 61;
-        c.speed_range_mps = (1.0, 2.0);
-        c.dropout_rate_hz = 1.0 / 150.0;
-        c.dropout_s = (15.0, 40.0);
-        c
+        // Same seafloor statistics and altitude as the one-hour survey, fewer/shorter lines.
+        let t = TerrainConfig::area((-130.0, len + 130.0), (-130.0, emax + 130.0));
+        Self::with(t, wps)
     }
 
     fn with(terrain: TerrainConfig, waypoints: Vec<(f64, f64)>) -> Self {
@@ -127,9 +116,9 @@ impl SimConfig {
             heading_bias_sigma_rad: 0.3f64.to_radians(),
             heading_rw_rad_per_sqrt_s: 0.05f64.to_radians() / 60f64.sqrt(),
             heading_noise_rad: 0.02f64.to_radians(),
-            dropout_rate_hz: 1.0 / 500.0,
-            dropout_s: (30.0, 120.0),
-            current_mps: (0.05, 0.3),
+            dropout_rate_hz: 1.0 / 600.0,
+            dropout_s: (20.0, 90.0),
+            current_mps: (0.05, 0.25),
             water_track_noise_mps: 0.03,
             reported_sigma_bottom_mps: 0.01,
             reported_sigma_water_mps: 0.2,

@@ -174,7 +174,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let mut evals: Vec<(u64, Evaluation)> = vec![];
     let mut pooled: [Vec<f32>; 4] = Default::default();
     for seed in seeds.clone() {
-        let scfg = if args.small { SimConfig::small(4, 200.0, 45.0) } else { SimConfig::one_hour(seed) };
+        let scfg = if args.small { SimConfig::small(3, 320.0, 140.0) } else { SimConfig::one_hour(seed) };
         let t0 = Instant::now();
         let sim = sim::simulate(&scfg, seed);
         let sim_s = t0.elapsed().as_secs_f64();
