@@ -16,7 +16,8 @@ pub fn default_index() -> f32 {
 
 /// Refracted (in-water) zenith angle for an in-air zenith angle.
 pub fn water_zenith_rad(air_zenith_rad: f32, n_water: f32) -> f32 {
-    libm::asinf((crate::ephemeris::phase::sincos_rad(air_zenith_rad).0 / n_water).clamp(-1.0, 1.0))
+    let x = (crate::ephemeris::phase::sincos_rad(air_zenith_rad).0 / n_water).clamp(-1.0, 1.0);
+    libm::atan2f(x, libm::sqrtf(1.0 - x * x))
 }
 
 /// In-air zenith angle from the in-water one (inverse Snell). `None` when the in-water zenith is
@@ -31,7 +32,8 @@ pub fn air_zenith_rad(water_zenith_rad: f32, n_water: f32, tolerance_rad: f32) -
         // atan2 form: libm's asinf uses an f64 square root (software on the M4F) for x >= 0.5.
         return Some(libm::atan2f(x, libm::sqrtf(1.0 - x * x)));
     }
-    let critical = libm::asinf(1.0 / n_water);
+    // asin(1 / n) without libm's asinf (which uses an f64 square root).
+    let critical = libm::atan2f(1.0, libm::sqrtf((n_water * n_water - 1.0).max(0.0)));
     if water_zenith_rad <= critical + tolerance_rad { Some(core::f32::consts::FRAC_PI_2) } else { None }
 }
 
