@@ -141,7 +141,9 @@ impl Rng {
 // ---------------------------------------------------------------------------------------------
 // ICM-42688-P
 
-fn imu_rig(cfg: ImuConfig) -> (Icm42688<SimSpi>, Rc<RefCell<Icm42688Model>>, Arc<Mutex<ImuInput>>, Clock) {
+type ImuRig = (Icm42688<SimSpi>, Rc<RefCell<Icm42688Model>>, Arc<Mutex<ImuInput>>, Clock);
+
+fn imu_rig(cfg: ImuConfig) -> ImuRig {
     let input = Arc::new(Mutex::new(ImuInput::default()));
     let src = input.clone();
     let model = Rc::new(RefCell::new(Icm42688Model::new(move |_t| *src.lock().unwrap())));
@@ -296,10 +298,10 @@ fn ads1115_reads_back_random_volts_within_half_an_lsb() {
             let scan = adcs.scan(&mut SimDelay(clock.clone()));
             assert!(scan.errors.iter().all(|e| e.is_none()), "{:?}", scan.errors);
             assert_eq!(scan.saturated, [0; 4]);
-            for u in 0..4 {
-                for ch in 0..4 {
-                    let got = f64::from(adc::volts(scan.counts[u][ch], fsr));
-                    let err = (got - v[u][ch]).abs();
+            for (u, (counts, volts_in)) in scan.counts.iter().zip(v.iter()).enumerate() {
+                for (ch, (c, want)) in counts.iter().zip(volts_in.iter()).enumerate() {
+                    let got = f64::from(adc::volts(*c, fsr));
+                    let err = (got - want).abs();
                     assert!(err <= 0.5 * lsb + 1e-6 * fs, "unit {u} ch {ch}: {err} V > half LSB {}", 0.5 * lsb);
                     worst = worst.max(err / lsb);
                 }
@@ -357,7 +359,9 @@ fn ads1115_faults_fail_only_the_affected_unit() {
 // ---------------------------------------------------------------------------------------------
 // MS5837-30BA
 
-fn depth_rig() -> (Ms5837<SimI2c>, Rc<RefCell<Ms5837Model>>, Arc<Mutex<PressureInput>>, Clock) {
+type DepthRig = (Ms5837<SimI2c>, Rc<RefCell<Ms5837Model>>, Arc<Mutex<PressureInput>>, Clock);
+
+fn depth_rig() -> DepthRig {
     let input = Arc::new(Mutex::new(PressureInput { pressure_pa: 101_325.0, temp_c: 15.0 }));
     let src = input.clone();
     let model = Rc::new(RefCell::new(Ms5837Model::new(move |_t| *src.lock().unwrap())));

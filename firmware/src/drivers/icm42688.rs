@@ -366,7 +366,7 @@ pub fn scale<E>(raw: &RawImu, config: Config) -> Result<ImuReading, Error<E>> {
     }
     let mut saturated = 0u8;
     for (i, &v) in raw.accel.iter().chain(raw.gyro.iter()).enumerate() {
-        if v >= FULL_SCALE || v <= -FULL_SCALE {
+        if v.unsigned_abs() >= FULL_SCALE.unsigned_abs() {
             saturated |= 1 << i;
         }
     }

@@ -116,9 +116,10 @@ impl BusFaults {
         } else if self.timeout_next > 0 {
             self.timeout_next -= 1;
             Some(BusFault::Timeout)
-        } else if self.nack_window_us.is_some_and(|(a, b)| (a..b).contains(&t_us)) {
-            Some(BusFault::Nack)
-        } else if self.nack_probability > 0.0 && self.rng.random::<f64>() < self.nack_probability {
+        } else if self.nack_window_us.is_some_and(|(a, b)| (a..b).contains(&t_us))
+            // The generator is drawn only outside windows, so a window does not shift the draws.
+            || (self.nack_probability > 0.0 && self.rng.random::<f64>() < self.nack_probability)
+        {
             Some(BusFault::Nack)
         } else {
             None
@@ -254,10 +255,7 @@ mod tests {
 
     #[test]
     fn faults_fire_in_order_and_reproducibly() {
-        let mut f = BusFaults::default();
-        f.nack_next = 1;
-        f.timeout_next = 1;
-        f.nack_window_us = Some((100, 200));
+        let mut f = BusFaults { nack_next: 1, timeout_next: 1, nack_window_us: Some((100, 200)), ..Default::default() };
         assert_eq!(f.check(0), Err(BusFault::Nack));
         assert_eq!(f.check(0), Err(BusFault::Timeout));
         assert_eq!(f.check(0), Ok(()));
