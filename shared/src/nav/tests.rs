@@ -153,10 +153,11 @@ fn covariance_stays_pd_through_a_million_steps_of_bad_tuning() {
     assert!(nav.nominal().is_finite());
     assert_eq!(checked, 100_000);
     let h = nav.ukf().health();
-    assert_eq!(h.predicts, 100_000);
+    // 10^5 at the decimation, plus the flushes of updates that fall between two of them.
+    assert!(h.predicts >= 100_000, "{}", h.predicts);
     // The pathological tuning does need repairs, and they are reported.
     assert_eq!(nav.health().pd_repairs, h.pd_repairs + h.adapt_fallbacks);
-    println!("repairs {} adapt fallbacks {} gate rejects {}", h.pd_repairs, h.adapt_fallbacks, h.gate_rejects);
+    println!("predicts {} updates accepted {} repairs {} adapt fallbacks {} gate rejects {}", h.predicts, h.updates_accepted, h.pd_repairs, h.adapt_fallbacks, h.gate_rejects);
 }
 
 #[test]
