@@ -417,7 +417,7 @@ mod tests {
         assert_eq!(f.sens, 1145816755);
         assert_eq!(f.p, 39998);
         // The datasheet prints OFF = 2381326464, which its own formula does not give:
-        // C2*2^16 + C4*dT/2^7 = 2382364672 - 1041207.40625 = 2381323464.59 (a transposed digit in
+        // C2*2^16 + C4*dT/2^7 = 2382364672 - 1041207.40625 = 2381323464.59 (a misprinted digit in
         // the datasheet). We assert the formula's value.
         assert_eq!(f.off, 2381323464);
     }
