@@ -231,7 +231,9 @@ impl App {
         core::mem::replace(&mut self.request, BoardRequest::None)
     }
 
-    fn handle_command(&mut self, now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
+    /// Apply a command as if it came over the downlink (boards use this for a configured start:
+    /// time and origin given at launch). It is acknowledged like any other.
+    pub fn handle_command(&mut self, now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
         let result = self.apply(cmd.command);
         match result {
             Ok(()) => info!("command {=u16} accepted", cmd.seq),

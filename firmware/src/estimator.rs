@@ -2,7 +2,8 @@
 //! the IMU, the polarization compass and the depth sensor. HAL-free; the application feeds it
 //! samples and asks it for telemetry.
 //!
-//! Alignment: roll and pitch from the mean specific force over `ALIGN_S` at rest; yaw from the
+//! Alignment (the head must be at rest): roll and pitch from the mean specific force over
+//! `ALIGN_S`, the gyro bias from the mean rate; yaw from the
 //! first compass fix within `ALIGN_MAX_S`, else yaw 0 with a large 1-sigma (the compass then
 //! pulls it in). Depth is positive down (NED z).
 
@@ -19,12 +20,15 @@ const ALIGN_MAX_S: f32 = 10.0;
 /// spreads the error-state sigma points wrap around the circle and the covariance collapses
 /// (measured: an initial sigma of pi came out as 0.10 rad after 2 s of depth updates).
 const YAW_UNKNOWN_SIGMA_RAD: f32 = 1.5;
+/// 1-sigma of the gyro bias left after the at-rest estimate (rad/s): 0.01 deg/s.
+const ALIGNED_GYRO_BIAS_SIGMA_RADPS: f32 = 1.75e-4;
 
 #[derive(Debug, Clone, Copy, Default)]
 struct Align {
     start_us: Option<u64>,
     n: u32,
     sum_accel: [f32; 3],
+    sum_gyro: [f32; 3],
 }
 
 pub struct Estimator {
@@ -40,6 +44,10 @@ pub struct Estimator {
     accel_seen: bool,
     /// Latest depth (for the initial position).
     last_depth_m: Option<f32>,
+    /// Gyro bias measured at rest during alignment (rad/s), removed from every sample before the
+    /// filter (which then estimates only the residual). The Earth rate (7.3e-5 rad/s) stays in
+    /// it: below the residual the filter is tuned for.
+    gyro_bias_align: [f32; 3],
     /// Rejected inputs outside the filter (non-finite before alignment, compass failures).
     pub input_rejects: u32,
 }
@@ -62,6 +70,7 @@ impl Estimator {
             accel_lp: [0.0; 3],
             accel_seen: false,
             last_depth_m: None,
+            gyro_bias_align: [0.0; 3],
             input_rejects: 0,
         }
     }
@@ -92,7 +101,11 @@ impl Estimator {
             }
         }
         if let Some(nav) = self.nav.as_mut() {
-            return nav.propagate(s);
+            let mut c = *s;
+            for (g, b) in c.gyro_radps.iter_mut().zip(self.gyro_bias_align) {
+                *g -= b;
+            }
+            return nav.propagate(&c);
         }
         if !finite {
             self.input_rejects = self.input_rejects.wrapping_add(1);
@@ -103,14 +116,21 @@ impl Estimator {
         for (acc, v) in self.align.sum_accel.iter_mut().zip(s.accel_mps2) {
             *acc += v;
         }
+        for (acc, v) in self.align.sum_gyro.iter_mut().zip(s.gyro_radps) {
+            *acc += v;
+        }
         let elapsed_s = s.t_us.saturating_sub(start) as f32 * 1e-6;
         if elapsed_s >= ALIGN_S && (self.yaw_fix.is_some() || elapsed_s >= ALIGN_MAX_S) {
             let n = self.align.n as f32;
             let f = self.align.sum_accel.map(|v| v / n);
             let (roll, pitch) = head::level_from_accel(f);
+            self.gyro_bias_align = self.align.sum_gyro.map(|v| v / n);
             let (yaw, yaw_sigma) = self.yaw_fix.unwrap_or((0.0, YAW_UNKNOWN_SIGMA_RAD));
             let mut cfg = self.cfg;
             cfg.init_sigma_att_rad[2] = yaw_sigma.max(cfg.init_sigma_att_rad[2]);
+            // What is left of the gyro bias after the at-rest estimate: white noise over the
+            // alignment plus the Earth rate, with margin.
+            cfg.init_sigma_gyro_bias = ALIGNED_GYRO_BIAS_SIGMA_RADPS;
             let init = NavInit {
                 t_us: s.t_us,
                 att_nb: head::attitude(roll, pitch, yaw),

@@ -123,6 +123,8 @@ pub struct QemuConfig {
     /// Also send every byte chunk, as received or sent and before decoding, here (lossless
     /// recordings: `subnav qemu --record`).
     pub raw_tap: Option<mpsc::Sender<RawBytes>>,
+    /// Extra board options (`key=value`, no commas), e.g. `utc_unix_us=...`, `lat_e7=...`.
+    pub board_args: Vec<String>,
 }
 
 impl QemuConfig {
@@ -136,6 +138,7 @@ impl QemuConfig {
             timeout: Duration::from_secs(120),
             record: None,
             raw_tap: None,
+            board_args: Vec::new(),
         }
     }
 }
@@ -261,6 +264,12 @@ pub fn run_with_bus(
     }
     if let Some(ms) = cfg.panic_at_ms {
         args.push(format!("arg=panic_at_ms={ms}"));
+    }
+    for a in &cfg.board_args {
+        if a.contains(',') || a.contains(' ') {
+            bail!("board option {a:?} must not contain commas or spaces");
+        }
+        args.push(format!("arg={a}"));
     }
     let pipe_dir = std::env::temp_dir().join(format!("subnav-bridge-{}-{port}", std::process::id()));
     std::fs::create_dir_all(&pipe_dir).with_context(|| format!("creating {}", pipe_dir.display()))?;

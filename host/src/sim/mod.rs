@@ -1,4 +1,8 @@
-//! Dive simulator for sensors-in-the-loop runs: truth trajectory ([`trajectory`]), and (with the
-//! chip models) the simulated sensor head that answers the firmware's bus transactions.
+//! Dive simulator for sensors-in-the-loop runs: the truth trajectory ([`trajectory`]) and the
+//! simulated sensor head ([`head`]) that answers the firmware's bus transactions under QEMU.
 
+pub mod dive;
+pub mod head;
 pub mod trajectory;
+
+pub use head::{FaultPlan, Scenario, SimHead};

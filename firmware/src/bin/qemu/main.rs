@@ -43,7 +43,7 @@ impl ByteLink for PipeLink {
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_shared::wire::Board;
+use subnav_shared::wire::{Board, Command, ConfigItem, Downlink};
 
 mod cmsdk_uart;
 mod semihost_pipe;
@@ -105,6 +105,17 @@ struct RunOptions {
     /// Paths of the bridge pipes (NUL-terminated copies), if given.
     bus_req: Option<([u8; 200], usize)>,
     bus_resp: Option<([u8; 200], usize)>,
+    /// Configured start: UTC at boot and the NED origin (1e-7 deg).
+    utc_unix_us: Option<u64>,
+    lat_e7: Option<i64>,
+    lon_e7: Option<i64>,
+}
+
+fn parse_i64(s: &[u8]) -> Option<i64> {
+    match s.split_first() {
+        Some((b'-', rest)) => parse_u64(rest).and_then(|v| i64::try_from(v).ok()).map(|v| -v),
+        _ => parse_u64(s).and_then(|v| i64::try_from(v).ok()),
+    }
 }
 
 fn path_arg(v: &[u8]) -> Option<([u8; 200], usize)> {
@@ -124,7 +135,7 @@ fn parse_u64(s: &[u8]) -> Option<u64> {
 }
 
 fn run_options() -> RunOptions {
-    let mut opts = RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None };
+    let mut opts = RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None, utc_unix_us: None, lat_e7: None, lon_e7: None };
     let mut buf = [0u8; 640];
     // SYS_GET_CMDLINE (0x15): parameter block [buffer address, buffer length]; the host writes
     // a NUL-terminated command line and updates the length.
@@ -144,6 +155,12 @@ fn run_options() -> RunOptions {
             opts.bus_req = path_arg(v);
         } else if let Some(v) = word.strip_prefix(b"bus_resp=") {
             opts.bus_resp = path_arg(v);
+        } else if let Some(v) = word.strip_prefix(b"utc_unix_us=") {
+            opts.utc_unix_us = parse_u64(v);
+        } else if let Some(v) = word.strip_prefix(b"lat_e7=") {
+            opts.lat_e7 = parse_i64(v);
+        } else if let Some(v) = word.strip_prefix(b"lon_e7=") {
+            opts.lon_e7 = parse_i64(v);
         }
     }
     opts
@@ -169,6 +186,14 @@ fn main() -> ! {
     };
     defmt::info!("board qemu-mps2-an386, run_ms={=?}, sensor bridge={=bool}", opts.run_ms, pipe.is_some());
     app.boot(0, &mut uart);
+    if let Some(utc) = opts.utc_unix_us.and_then(|u| i64::try_from(u).ok()) {
+        app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: utc } }, &mut uart);
+    }
+    if let (Some(lat), Some(lon)) = (opts.lat_e7, opts.lon_e7) {
+        let deg = core::f64::consts::PI / 180.0 * 1e-7;
+        let origin = ConfigItem::Origin { lat_rad: lat as f64 * deg, lon_rad: lon as f64 * deg, alt_m: 0.0 };
+        app.handle_command(0, Downlink { seq: 0, command: Command::SetConfig(origin) }, &mut uart);
+    }
 
     let has_bridge = pipe.is_some();
     let bridge = RefCell::new(BridgeClient::new(PipeLink(pipe)));

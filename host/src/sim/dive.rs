@@ -1,0 +1,157 @@
+//! A simulated dive with the firmware in the loop: boot the QEMU firmware with the scenario's
+//! configured start (UTC, origin), answer its bus transactions with [`SimHead`], collect its
+//! telemetry and compare the navigation solution with the truth trajectory.
+
+use std::path::Path;
+use std::time::Duration;
+
+use anyhow::Result;
+use nalgebra::{Quaternion, UnitQuaternion};
+use serde::Serialize;
+use subnav_shared::wire::{NavMode, Uplink};
+
+use super::head::{Scenario, SimHead};
+use crate::link::LinkEvent;
+use crate::link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+
+/// Error statistics of one dive.
+#[derive(Debug, Clone, Serialize)]
+pub struct DiveResult {
+    pub exit_code: Option<i32>,
+    pub nav_messages: usize,
+    /// Nav messages in `Aided` mode (the statistics below are over these).
+    pub aided_messages: usize,
+    pub first_aided_s: Option<f64>,
+    pub heading_rmse_deg: f64,
+    pub heading_max_abs_err_deg: f64,
+    pub horizontal_rms_err_m: f64,
+    pub horizontal_final_err_m: f64,
+    pub depth_rmse_m: f64,
+    /// Fraction of aided samples whose horizontal error is within 3 sigma of the filter's own
+    /// reported position uncertainty (per axis, north and east).
+    pub within_3_sigma: f64,
+    /// Non-finite values seen in any navigation message.
+    pub nonfinite_values: usize,
+    pub compass_fixes: usize,
+    pub compass_no_fix: usize,
+    /// The sensors alone: compass heading fixes and raw depth samples against the truth.
+    pub compass_rmse_deg: f64,
+    pub raw_depth_rmse_m: f64,
+    /// (source, kind, latest count) of every fault reported.
+    pub faults: Vec<(String, String, u32)>,
+    pub corrupt_frames: u64,
+    pub bus_transactions: u64,
+}
+
+fn wrap_deg(x: f64) -> f64 {
+    (x + 180.0).rem_euclid(360.0) - 180.0
+}
+
+/// Run `sc` with the QEMU firmware `elf`.
+pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Duration) -> Result<DiveResult> {
+    let mut cfg = QemuConfig::new(elf);
+    cfg.run_ms = Some((sc.duration_s * 1000.0) as u64);
+    cfg.timeout = timeout;
+    cfg.record = record.map(Path::to_path_buf);
+    cfg.board_args = vec![
+        format!("utc_unix_us={}", sc.start_utc_unix_us),
+        format!("lat_e7={}", (sc.lat_deg * 1e7).round() as i64),
+        format!("lon_e7={}", (sc.lon_deg * 1e7).round() as i64),
+    ];
+    let traj = sc.trajectory();
+    let mut msgs = Vec::new();
+    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, _| {
+        if let QemuEvent::Link(LinkEvent::Message(m)) = e {
+            msgs.push(m);
+        }
+    })?;
+
+    let mut r = DiveResult {
+        exit_code: outcome.exit_code,
+        nav_messages: 0,
+        aided_messages: 0,
+        first_aided_s: None,
+        heading_rmse_deg: f64::NAN,
+        heading_max_abs_err_deg: 0.0,
+        horizontal_rms_err_m: f64::NAN,
+        horizontal_final_err_m: f64::NAN,
+        depth_rmse_m: f64::NAN,
+        within_3_sigma: f64::NAN,
+        nonfinite_values: 0,
+        compass_fixes: 0,
+        compass_no_fix: 0,
+        compass_rmse_deg: f64::NAN,
+        raw_depth_rmse_m: f64::NAN,
+        faults: Vec::new(),
+        corrupt_frames: outcome.link.frames_bad,
+        bus_transactions: outcome.bus_transactions,
+    };
+    let (mut sh, mut sp, mut sd, mut inside) = (0.0, 0.0, 0.0, 0usize);
+    let (mut sc2, mut sr, mut nr) = (0.0, 0.0, 0usize);
+    for m in &msgs {
+        match m {
+            Uplink::Nav(n) => {
+                r.nav_messages += 1;
+                let values = n.pos_ned_m.iter().chain(&n.vel_ned_mps).chain(&n.att_nb_wxyz);
+                r.nonfinite_values += values.filter(|v| !v.is_finite()).count();
+                if n.mode != NavMode::Aided {
+                    continue;
+                }
+                let t = n.t_us as f64 * 1e-6;
+                r.first_aided_s.get_or_insert(t);
+                let truth = traj.at(t);
+                let [w, x, y, z] = n.att_nb_wxyz.map(f64::from);
+                let q = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+                let yaw = q.euler_angles().2.to_degrees();
+                let eh = wrap_deg(yaw - truth.yaw_rad.to_degrees());
+                let (en, ee) = (n.pos_ned_m[0] as f64 - truth.pos_ned_m.x, n.pos_ned_m[1] as f64 - truth.pos_ned_m.y);
+                let ed = n.pos_ned_m[2] as f64 - truth.pos_ned_m.z;
+                r.aided_messages += 1;
+                sh += eh * eh;
+                sp += en * en + ee * ee;
+                sd += ed * ed;
+                r.heading_max_abs_err_deg = r.heading_max_abs_err_deg.max(eh.abs());
+                r.horizontal_final_err_m = (en * en + ee * ee).sqrt();
+                if en.abs() <= 3.0 * n.sigma_pos_m[0] as f64 && ee.abs() <= 3.0 * n.sigma_pos_m[1] as f64 {
+                    inside += 1;
+                }
+            }
+            Uplink::Raw(subnav_shared::wire::RawSample::Depth(d)) => {
+                let e = d.depth_m as f64 - traj.at(d.t_us as f64 * 1e-6).pos_ned_m.z;
+                sr += e * e;
+                nr += 1;
+            }
+            Uplink::Compass(c) => {
+                if let Some(h) = c.heading_rad {
+                    let e = wrap_deg((h as f64).to_degrees() - traj.at(c.t_us as f64 * 1e-6).yaw_rad.to_degrees());
+                    sc2 += e * e;
+                    r.compass_fixes += 1;
+                } else {
+                    r.compass_no_fix += 1;
+                }
+            }
+            Uplink::Fault(f) => {
+                let (s, k) = (format!("{:?}", f.source), format!("{:?}", f.kind));
+                match r.faults.iter_mut().find(|e| e.0 == s && e.1 == k) {
+                    Some(e) => e.2 = e.2.max(f.count),
+                    None => r.faults.push((s, k, f.count)),
+                }
+            }
+            _ => {}
+        }
+    }
+    if r.compass_fixes > 0 {
+        r.compass_rmse_deg = (sc2 / r.compass_fixes as f64).sqrt();
+    }
+    if nr > 0 {
+        r.raw_depth_rmse_m = (sr / nr as f64).sqrt();
+    }
+    if r.aided_messages > 0 {
+        let n = r.aided_messages as f64;
+        r.heading_rmse_deg = (sh / n).sqrt();
+        r.horizontal_rms_err_m = (sp / n).sqrt();
+        r.depth_rmse_m = (sd / n).sqrt();
+        r.within_3_sigma = inside as f64 / n;
+    }
+    Ok(r)
+}
