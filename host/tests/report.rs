@@ -31,7 +31,7 @@ fn report_on_a_simulated_dive_writes_valid_figures_and_pages() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let stats = &v["report"]["stats"];
-    assert!(stats["scored"].as_u64().unwrap() > 1000, "{stats}");
+    assert!(stats["scored"].as_u64().unwrap() > 800, "{stats}"); // 10 Hz over 90 s
     let h = stats["horizontal_rmse_m"].as_f64().unwrap();
     assert!(h > 0.0 && h < 5.0, "horizontal RMSE {h} m on a 90 s DVL-aided dive");
     let hd = stats["heading_rmse_deg"].as_f64().unwrap();
