@@ -45,6 +45,12 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    // `subnav ... | head` must end quietly when the reader goes away, like other Unix tools,
+    // instead of panicking in println! on EPIPE.
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let args = Cli::parse();
     let result = match args.command {
         Command::Decode(a) => cli::decode::run(a, args.format),
