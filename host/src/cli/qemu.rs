@@ -32,6 +32,12 @@ pub struct Args {
     /// QEMU -icount shift (virtual ns per instruction = 2^shift).
     #[arg(long, default_value_t = 3)]
     pub icount_shift: u8,
+    /// Run without the simulated sensors (every bus transaction is NACKed).
+    #[arg(long)]
+    pub no_sensors: bool,
+    /// Seed of the simulated dive (default scenario: survey at 10 m, Bay of Biscay, June morning).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
@@ -41,10 +47,18 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     cfg.timeout = Duration::from_secs(args.timeout_s);
     cfg.icount_shift = args.icount_shift;
     let recorder = args.record.as_ref().map(|p| QemuRecorder::start(&mut cfg, p)).transpose()?;
-    let outcome = qemu::run(&cfg, |event, _| match event {
+    let scenario = crate::sim::Scenario { seed: args.seed, duration_s: (args.run_ms as f64 / 1000.0).max(1.0), ..Default::default() };
+    let bus: Box<dyn qemu::BusHandler> = if args.no_sensors {
+        Box::new(qemu::NothingAttached)
+    } else {
+        cfg.board_args = scenario.board_args();
+        Box::new(crate::sim::SimHead::new(&scenario))
+    };
+    let outcome = qemu::run_with_bus(&cfg, bus, |event, _| match event {
         QemuEvent::Link(e) => print::event(&e, format),
         QemuEvent::Log(l) => print::log(&l, format),
-    });
+    })
+    .map(|(o, _)| o);
     cfg.raw_tap = None;
     if let Some(r) = recorder {
         r.finish()?;

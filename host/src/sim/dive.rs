@@ -53,11 +53,7 @@ pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Durat
     cfg.run_ms = Some((sc.duration_s * 1000.0) as u64);
     cfg.timeout = timeout;
     cfg.record = record.map(Path::to_path_buf);
-    cfg.board_args = vec![
-        format!("utc_unix_us={}", sc.start_utc_unix_us),
-        format!("lat_e7={}", (sc.lat_deg * 1e7).round() as i64),
-        format!("lon_e7={}", (sc.lon_deg * 1e7).round() as i64),
-    ];
+    cfg.board_args = sc.board_args();
     let traj = sc.trajectory();
     let mut msgs = Vec::new();
     let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, _| {

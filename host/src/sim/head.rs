@@ -77,6 +77,15 @@ impl Scenario {
         Trajectory::lawnmower(&self.survey, self.duration_s + 60.0)
     }
 
+    /// QEMU board options for the scenario's configured start (UTC at boot, NED origin).
+    pub fn board_args(&self) -> Vec<String> {
+        vec![
+            format!("utc_unix_us={}", self.start_utc_unix_us),
+            format!("lat_e7={}", (self.lat_deg * 1e7).round() as i64),
+            format!("lon_e7={}", (self.lon_deg * 1e7).round() as i64),
+        ]
+    }
+
     pub fn observer(&self) -> Observer {
         Observer { lat_rad: self.lat_deg.to_radians() as f32, lon_rad: self.lon_deg.to_radians() as f32, height_m: 0.0 }
     }
