@@ -1,7 +1,8 @@
 //! `cargo xtask`: build automation for subnav.
 //!
 //! - `cargo xtask test`  : install what is missing, build both firmware boards, check sizes and
-//!                         that no heap allocator is linked, set up the peer venv, run every test.
+//!                         that no heap allocator is linked, set up the peer venv, run every test,
+//!                         build the `probe` feature of the host tool.
 //! - `cargo xtask run`   : build the QEMU firmware and run it with the host decoding live.
 //! - `cargo xtask build` : build the firmware boards (`--board qemu|stm32f4|all`).
 //! - `cargo xtask size`  : flash / RAM per board binary and the no-heap check.
@@ -143,6 +144,11 @@ fn test(rest: &[String]) -> Result<()> {
     c.args(rest.iter().skip_while(|a| *a != "--"));
     c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python);
     run(&mut c)?;
+    // `subnav flash` / `attach` (probe-rs) cannot be exercised without a board; build them so
+    // they cannot rot.
+    let mut c = host_cargo();
+    c.args(["build", "-p", "subnav-host", "--features", "probe"]);
+    run(&mut c).context("building the probe feature (subnav flash / attach)")?;
     eprintln!("xtask: all tests passed in {:.0} s", started.elapsed().as_secs_f64());
     Ok(())
 }
