@@ -7,14 +7,13 @@
 //! reported as a fault (rate-limited) and the estimator goes on with the other sensors.
 
 use subnav_shared::wire::{
-    Board, Command, CommandAck, ConfigItem, Decoded, Downlink, Fault, FaultKind, FaultSource,
-    FilterHealth, FrameDecoder, MAX_DOWNLINK_FRAME, Refusal, Uplink,
-    boot_message,
+    Board, Command, CommandAck, ConfigItem, Decoded, Downlink, Fault, FaultKind, FaultSource, FilterHealth, FrameDecoder,
+    MAX_DOWNLINK_FRAME, Refusal, Uplink, boot_message,
 };
 
 use subnav_shared::ephemeris::Observer;
 use subnav_shared::head;
-use subnav_shared::wire::{RawSample, PolarizationSample};
+use subnav_shared::wire::{PolarizationSample, RawSample};
 
 use crate::estimator::Estimator;
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
@@ -185,7 +184,10 @@ impl App {
     /// Send the boot message. Call once after reset, before anything else.
     pub fn boot(&mut self, now_us: u64, sink: &mut impl TelemetrySink) {
         let boot = boot_message(self.board, FIRMWARE_VERSION, now_us);
-        info!("subnav firmware {=u8}.{=u8}.{=u8} booting, protocol {=u16}", FIRMWARE_VERSION[0], FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], boot.protocol_version);
+        info!(
+            "subnav firmware {=u8}.{=u8}.{=u8} booting, protocol {=u16}",
+            FIRMWARE_VERSION[0], FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], boot.protocol_version
+        );
         self.telemetry.send(&Uplink::Boot(boot), sink);
     }
 
@@ -203,7 +205,8 @@ impl App {
                 Decoded::Corrupt(_) => {
                     self.corrupt_downlink = self.corrupt_downlink.wrapping_add(1);
                     warn!("corrupt downlink frame ({=u32} so far)", self.corrupt_downlink);
-                    let fault = Fault { t_us: now_us, source: FaultSource::Link, kind: FaultKind::CorruptFrame, count: self.corrupt_downlink };
+                    let fault =
+                        Fault { t_us: now_us, source: FaultSource::Link, kind: FaultKind::CorruptFrame, count: self.corrupt_downlink };
                     self.telemetry.send(&Uplink::Fault(fault), sink);
                 }
             }
@@ -293,7 +296,10 @@ impl App {
                 if !(lat_rad.is_finite() && lon_rad.is_finite() && alt_m.is_finite()) {
                     return Err(Refusal::NotFinite);
                 }
-                if lat_rad.abs() > core::f64::consts::FRAC_PI_2 || lon_rad.abs() > core::f64::consts::PI || !(-12_000.0..=10_000.0).contains(&alt_m) {
+                if lat_rad.abs() > core::f64::consts::FRAC_PI_2
+                    || lon_rad.abs() > core::f64::consts::PI
+                    || !(-12_000.0..=10_000.0).contains(&alt_m)
+                {
                     return Err(Refusal::OutOfRange);
                 }
                 self.config.origin = Some((lat_rad, lon_rad, alt_m));
@@ -329,11 +335,14 @@ mod tests {
 
     fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
         let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
-        bytes.iter().filter_map(|b| match dec.push::<Uplink>(*b) {
-            Decoded::Message(m) => Some(m),
-            Decoded::Corrupt(e) => panic!("firmware emitted a corrupt frame: {e}"),
-            Decoded::Pending => None,
-        }).collect()
+        bytes
+            .iter()
+            .filter_map(|b| match dec.push::<Uplink>(*b) {
+                Decoded::Message(m) => Some(m),
+                Decoded::Corrupt(e) => panic!("firmware emitted a corrupt frame: {e}"),
+                Decoded::Pending => None,
+            })
+            .collect()
     }
 
     fn cmd(seq: u16, command: Command) -> Vec<u8> {
@@ -367,14 +376,18 @@ mod tests {
         bytes.extend(cmd(4, Command::PositionFix { t_us: 0, pos_ned_m: [0.0; 3], cov_ned_m2: [1.0, 2.0, 0.0, 1.0, 0.0, 1.0] }));
         bytes.extend(cmd(5, Command::SetTime { t_us: 1_000, utc_unix_us: 1_790_000_000_000_000 }));
         app.on_downlink_bytes(0, &bytes, &mut out);
-        let acks: Vec<CommandAck> = decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
-        assert_eq!(acks, vec![
-            CommandAck { seq: 1, result: Err(Refusal::OutOfRange) },
-            CommandAck { seq: 2, result: Ok(()) },
-            CommandAck { seq: 3, result: Err(Refusal::NotFinite) },
-            CommandAck { seq: 4, result: Err(Refusal::NotPositiveDefinite) },
-            CommandAck { seq: 5, result: Ok(()) },
-        ]);
+        let acks: Vec<CommandAck> =
+            decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
+        assert_eq!(
+            acks,
+            vec![
+                CommandAck { seq: 1, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 2, result: Ok(()) },
+                CommandAck { seq: 3, result: Err(Refusal::NotFinite) },
+                CommandAck { seq: 4, result: Err(Refusal::NotPositiveDefinite) },
+                CommandAck { seq: 5, result: Ok(()) },
+            ]
+        );
         assert_eq!(app.config.nav_rate_hz, 20);
         assert_eq!(app.utc_offset_us, Some(1_790_000_000_000_000 - 1_000));
     }

@@ -10,8 +10,7 @@ use core::cell::RefCell;
 
 use embedded_hal::{i2c, spi};
 use subnav_shared::bridge::{
-    Bus, BusFault, BusRequest, BusResponse, Bytes, MAX_OP_BYTES, MAX_OPS, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME, Op,
-    ReadData,
+    Bus, BusFault, BusRequest, BusResponse, Bytes, MAX_OP_BYTES, MAX_OPS, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME, Op, ReadData,
 };
 use subnav_shared::wire::{self, Decoded, FrameDecoder};
 
@@ -169,10 +168,13 @@ impl<L: ByteLink> i2c::I2c for BridgeI2c<'_, L> {
             let Ok(mut client) = self.client.try_borrow_mut() else { return Err(BridgeError(BusFault::Other)) };
             client.transact(Bus::I2c { bus: self.bus, address }, ops.get(..operations.len()).unwrap_or(&[])).map_err(BridgeError)?
         };
-        scatter(data.as_slice(), operations.iter_mut().filter_map(|op| match op {
-            i2c::Operation::Read(buf) => Some(&mut **buf),
-            i2c::Operation::Write(_) => None,
-        }))
+        scatter(
+            data.as_slice(),
+            operations.iter_mut().filter_map(|op| match op {
+                i2c::Operation::Read(buf) => Some(&mut **buf),
+                i2c::Operation::Write(_) => None,
+            }),
+        )
     }
 }
 

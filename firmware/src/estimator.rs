@@ -144,7 +144,13 @@ impl Estimator {
 
     /// Run the compass on the units that were read (`(unit index, counts)`, the others failed);
     /// feed a heading fix to the filter.
-    pub fn on_polarization(&mut self, t_us: u64, readings: &[(usize, [i16; 4])], utc_unix_us: Option<i64>, observer: Option<Observer>) -> CompassReport {
+    pub fn on_polarization(
+        &mut self,
+        t_us: u64,
+        readings: &[(usize, [i16; 4])],
+        utc_unix_us: Option<i64>,
+        observer: Option<Observer>,
+    ) -> CompassReport {
         let mut models: heapless::Vec<UnitModel, { head::POLARIZATION_UNITS }> = heapless::Vec::new();
         let mut counts: heapless::Vec<[i16; 4], { head::POLARIZATION_UNITS }> = heapless::Vec::new();
         for (idx, c) in readings {

@@ -16,7 +16,7 @@ pub mod sensors;
 pub mod telemetry;
 
 pub use app::{App, AppConfig};
-pub use telemetry::{TelemetrySink, Telemetry};
+pub use telemetry::{Telemetry, TelemetrySink};
 
 /// Firmware version reported in the boot message.
 pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];

@@ -6,11 +6,15 @@
 macro_rules! info { ($($t:tt)*) => { defmt::info!($($t)*) } }
 #[cfg(not(feature = "defmt"))]
 #[macro_export]
-macro_rules! info { ($($t:tt)*) => {{}} }
+macro_rules! info {
+    ($($t:tt)*) => {{}};
+}
 
 #[cfg(feature = "defmt")]
 #[macro_export]
 macro_rules! warn { ($($t:tt)*) => { defmt::warn!($($t)*) } }
 #[cfg(not(feature = "defmt"))]
 #[macro_export]
-macro_rules! warn { ($($t:tt)*) => {{}} }
+macro_rules! warn {
+    ($($t:tt)*) => {{}};
+}

@@ -26,11 +26,31 @@ fn message(i: usize) -> Uplink {
             sigma_vel_mps: [0.05; 3],
             sigma_att_rad: [0.01; 3],
         }),
-        1 => Uplink::Health(FilterHealth { t_us, nis: [1.0, 0.5, 2.0, f32::NAN], lambda: 1.0, q_diag: [1e-6; 5], r_diag: [1e-4; 4], pd_repairs: 0, gate_rejects: 3, nonfinite_rejects: 0, cpu_load_permille: 250 }),
-        2 | 3 | 4 => Uplink::Raw(RawSample::Imu(ImuSample { t_us, gyro_radps: [f, 0.001, -0.002], accel_mps2: [0.1, -0.05, -9.81], temp_c: 21.5 })),
+        1 => Uplink::Health(FilterHealth {
+            t_us,
+            nis: [1.0, 0.5, 2.0, f32::NAN],
+            lambda: 1.0,
+            q_diag: [1e-6; 5],
+            r_diag: [1e-4; 4],
+            pd_repairs: 0,
+            gate_rejects: 3,
+            nonfinite_rejects: 0,
+            cpu_load_permille: 250,
+        }),
+        2 | 3 | 4 => {
+            Uplink::Raw(RawSample::Imu(ImuSample { t_us, gyro_radps: [f, 0.001, -0.002], accel_mps2: [0.1, -0.05, -9.81], temp_c: 21.5 }))
+        }
         5 => Uplink::Raw(RawSample::Depth(DepthSample { t_us, pressure_pa: 201_325.0 + f, temp_c: 12.0, depth_m: 10.0 + f })),
         6 => Uplink::Raw(RawSample::Polarization(PolarizationSample { t_us, unit: (i % 4) as u8, counts: [1200, 900, 400, 700] })),
-        _ => Uplink::Compass(CompassReport { t_us, heading_rad: Some(1.2), sigma_heading_rad: 0.02, sun_rel_azimuth_rad: 0.3, sun_elevation_rad: 0.8, no_fix_reason: 0, units_used: 4 }),
+        _ => Uplink::Compass(CompassReport {
+            t_us,
+            heading_rad: Some(1.2),
+            sigma_heading_rad: 0.02,
+            sun_rel_azimuth_rad: 0.3,
+            sun_elevation_rad: 0.8,
+            no_fix_reason: 0,
+            units_used: 4,
+        }),
     }
 }
 

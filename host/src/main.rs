@@ -5,7 +5,11 @@ use clap::{Parser, Subcommand};
 use subnav_host::cli;
 
 #[derive(Parser)]
-#[command(name = "subnav", version, about = "Underwater vehicle navigation: sensor-head telemetry, QEMU runs and host-side navigation methods")]
+#[command(
+    name = "subnav",
+    version,
+    about = "Underwater vehicle navigation: sensor-head telemetry, QEMU runs and host-side navigation methods"
+)]
 struct Cli {
     /// Output format for results.
     #[arg(long, global = true, value_enum, default_value_t = cli::Format::Text)]

@@ -24,11 +24,29 @@ fn messages() -> Vec<Uplink> {
             sigma_att_rad: [0.01; 3],
         }));
         if i % 4 == 0 {
-            v.push(Uplink::Health(FilterHealth { t_us, nis: [1.0, f32::NAN, 0.5, 2.0], lambda: 1.0, q_diag: [1e-6; 5], r_diag: [1e-3; 4], pd_repairs: 0, gate_rejects: 1, nonfinite_rejects: 0, cpu_load_permille: 100 }));
+            v.push(Uplink::Health(FilterHealth {
+                t_us,
+                nis: [1.0, f32::NAN, 0.5, 2.0],
+                lambda: 1.0,
+                q_diag: [1e-6; 5],
+                r_diag: [1e-3; 4],
+                pd_repairs: 0,
+                gate_rejects: 1,
+                nonfinite_rejects: 0,
+                cpu_load_permille: 100,
+            }));
             v.push(Uplink::Raw(RawSample::Imu(ImuSample { t_us, gyro_radps: [0.0; 3], accel_mps2: [0.0, 0.0, -9.8], temp_c: 20.0 })));
             v.push(Uplink::Raw(RawSample::Depth(DepthSample { t_us, pressure_pa: 1.3e5, temp_c: 10.0, depth_m: 3.0 })));
             v.push(Uplink::Raw(RawSample::Polarization(PolarizationSample { t_us, unit: 1, counts: [1, 2, 3, 4] })));
-            v.push(Uplink::Compass(CompassReport { t_us, heading_rad: (i % 8 == 0).then_some(0.5), sigma_heading_rad: 0.02, sun_rel_azimuth_rad: 0.1, sun_elevation_rad: 0.7, no_fix_reason: 0, units_used: 4 }));
+            v.push(Uplink::Compass(CompassReport {
+                t_us,
+                heading_rad: (i % 8 == 0).then_some(0.5),
+                sigma_heading_rad: 0.02,
+                sun_rel_azimuth_rad: 0.1,
+                sun_elevation_rad: 0.7,
+                no_fix_reason: 0,
+                units_used: 4,
+            }));
         }
     }
     v.push(Uplink::Fault(Fault { t_us: 1_000_000, source: FaultSource::Polarization { unit: 2 }, kind: FaultKind::BusNack, count: 1 }));
@@ -65,7 +83,15 @@ fn mcap_export_reads_back_with_expected_channels_schemas_and_counts() {
     let (rec, counts) = recording(dir.path());
     let out = dir.path().join("dive.mcap");
     let csv = dir.path().join("csv");
-    let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["--format", "json", "export"]).arg(&rec).arg("--mcap").arg(&out).arg("--csv").arg(&csv).output().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_subnav"))
+        .args(["--format", "json", "export"])
+        .arg(&rec)
+        .arg("--mcap")
+        .arg(&out)
+        .arg("--csv")
+        .arg(&csv)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(summary["corrupt_frames"], 3);

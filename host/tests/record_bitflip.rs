@@ -37,12 +37,39 @@ fn message(r: &mut Rng) -> Uplink {
             sigma_vel_mps: [r.f(); 3],
             sigma_att_rad: [r.f(); 3],
         }),
-        1 => Uplink::Health(FilterHealth { t_us, nis: [r.f(); 4], lambda: r.f(), q_diag: [r.f(); 5], r_diag: [r.f(); 4], pd_repairs: r.next() as u32, gate_rejects: 3, nonfinite_rejects: 0, cpu_load_permille: 250 }),
-        2 => Uplink::Raw(RawSample::Imu(ImuSample { t_us, gyro_radps: [r.f(), r.f(), r.f()], accel_mps2: [r.f(), r.f(), r.f()], temp_c: r.f() })),
+        1 => Uplink::Health(FilterHealth {
+            t_us,
+            nis: [r.f(); 4],
+            lambda: r.f(),
+            q_diag: [r.f(); 5],
+            r_diag: [r.f(); 4],
+            pd_repairs: r.next() as u32,
+            gate_rejects: 3,
+            nonfinite_rejects: 0,
+            cpu_load_permille: 250,
+        }),
+        2 => Uplink::Raw(RawSample::Imu(ImuSample {
+            t_us,
+            gyro_radps: [r.f(), r.f(), r.f()],
+            accel_mps2: [r.f(), r.f(), r.f()],
+            temp_c: r.f(),
+        })),
         3 => Uplink::Raw(RawSample::Depth(DepthSample { t_us, pressure_pa: r.f(), temp_c: r.f(), depth_m: r.f() })),
-        4 => Uplink::Raw(RawSample::Polarization(PolarizationSample { t_us, unit: r.below(4) as u8, counts: [r.next() as i16, 0, -1, r.next() as i16] })),
+        4 => Uplink::Raw(RawSample::Polarization(PolarizationSample {
+            t_us,
+            unit: r.below(4) as u8,
+            counts: [r.next() as i16, 0, -1, r.next() as i16],
+        })),
         5 => Uplink::Fault(Fault { t_us, source: FaultSource::Polarization { unit: 1 }, kind: FaultKind::BusNack, count: r.next() as u32 }),
-        _ => Uplink::Compass(CompassReport { t_us, heading_rad: Some(r.f()), sigma_heading_rad: r.f(), sun_rel_azimuth_rad: r.f(), sun_elevation_rad: r.f(), no_fix_reason: 0, units_used: 4 }),
+        _ => Uplink::Compass(CompassReport {
+            t_us,
+            heading_rad: Some(r.f()),
+            sigma_heading_rad: r.f(),
+            sun_rel_azimuth_rad: r.f(),
+            sun_elevation_rad: r.f(),
+            no_fix_reason: 0,
+            units_used: 4,
+        }),
     }
 }
 

@@ -15,7 +15,16 @@ fn records_a_tcp_source_losslessly() {
     let mut buf = [0u8; MAX_UPLINK_FRAME];
     bytes.extend_from_slice(encode(&Uplink::Boot(boot_message(Board::Stm32F405, [1, 0, 0], 0)), &mut buf).unwrap());
     for i in 0..200u64 {
-        let nav = NavSolution { t_us: i * 100_000, mode: NavMode::Aided, pos_ned_m: [i as f32, 0.0, 5.0], vel_ned_mps: [1.0, 0.0, 0.0], att_nb_wxyz: [1.0, 0.0, 0.0, 0.0], sigma_pos_m: [1.0; 3], sigma_vel_mps: [0.1; 3], sigma_att_rad: [0.01; 3] };
+        let nav = NavSolution {
+            t_us: i * 100_000,
+            mode: NavMode::Aided,
+            pos_ned_m: [i as f32, 0.0, 5.0],
+            vel_ned_mps: [1.0, 0.0, 0.0],
+            att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
+            sigma_pos_m: [1.0; 3],
+            sigma_vel_mps: [0.1; 3],
+            sigma_att_rad: [0.01; 3],
+        };
         bytes.extend_from_slice(encode(&Uplink::Nav(nav), &mut buf).unwrap());
     }
     bytes.extend_from_slice(&[0x05, 0x01, 0x02, 0x03, 0x04, 0x00]);
@@ -29,7 +38,8 @@ fn records_a_tcp_source_losslessly() {
     });
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("live.snrec");
-    let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["--format", "json", "record", "--tcp", &addr, "-o"]).arg(&out).output().unwrap();
+    let o =
+        Command::new(env!("CARGO_BIN_EXE_subnav")).args(["--format", "json", "record", "--tcp", &addr, "-o"]).arg(&out).output().unwrap();
     server.join().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();

@@ -75,7 +75,8 @@ pub const PHOTODIODE_NOISE: NoiseModel = NoiseModel { read_sigma_counts: 3.0, el
 pub fn polarization_units() -> [Option<UnitModel>; POLARIZATION_UNITS] {
     core::array::from_fn(|i| {
         let (view, axis0) = ring_geometry(i, POLARIZATION_UNITS, POLARIZATION_UNIT_ELEVATION_RAD);
-        UnitModel::nominal(view, axis0, POLARIZATION_GAIN_COUNTS, POLARIZATION_OFFSET_COUNTS, POLARIZER_EXTINCTION_RATIO, PHOTODIODE_NOISE).ok()
+        UnitModel::nominal(view, axis0, POLARIZATION_GAIN_COUNTS, POLARIZATION_OFFSET_COUNTS, POLARIZER_EXTINCTION_RATIO, PHOTODIODE_NOISE)
+            .ok()
     })
 }
 
@@ -119,7 +120,12 @@ mod tests {
             let u = u.expect("nominal unit model");
             assert!(u.view_body[2] < -0.2, "units look up (body z is down)");
         }
-        let init = crate::nav::NavInit { t_us: 0, att_nb: attitude(0.0, 0.0, 0.0), vel_ned_mps: nalgebra::Vector3::zeros(), pos_ned_m: nalgebra::Vector3::zeros() };
+        let init = crate::nav::NavInit {
+            t_us: 0,
+            att_nb: attitude(0.0, 0.0, 0.0),
+            vel_ned_mps: nalgebra::Vector3::zeros(),
+            pos_ned_m: nalgebra::Vector3::zeros(),
+        };
         assert!(crate::nav::NavFilter15::new(nav_config(), init).is_ok(), "default tuning must be a valid config");
     }
 

@@ -33,7 +33,7 @@ use subnav_firmware::drivers::icm42688::{self as imu, AccelRange, Config as ImuC
 use subnav_firmware::drivers::ms5837::{DepthParams, Ms5837, Osr};
 use subnav_firmware::drivers::{Error, StuckDetector};
 use subnav_host::chips::icm42688::Stuck;
-use subnav_host::chips::{Ads1115Model, BusFault, ChipSet, I2cChip, ImuInput, Icm42688Model, Ms5837Model, PressureInput, SpiChip};
+use subnav_host::chips::{Ads1115Model, BusFault, ChipSet, I2cChip, Icm42688Model, ImuInput, Ms5837Model, PressureInput, SpiChip};
 use subnav_shared::bridge::{BusRequest, MAX_REQUEST_FRAME};
 use subnav_shared::wire::{self, Decoded, FaultKind, FrameDecoder};
 
@@ -481,7 +481,11 @@ impl DelayNs for BridgeDelay<'_> {
 #[test]
 fn drivers_work_through_the_bridge_protocol_and_chipset() {
     let mut chips = ChipSet::new();
-    chips.attach_spi(0, 0, Icm42688Model::new(|_| ImuInput { gyro_radps: [0.1, -0.2, 0.3], specific_force_mps2: [0.0, 0.0, -9.80665], temp_c: 21.0 }));
+    chips.attach_spi(
+        0,
+        0,
+        Icm42688Model::new(|_| ImuInput { gyro_radps: [0.1, -0.2, 0.3], specific_force_mps2: [0.0, 0.0, -9.80665], temp_c: 21.0 }),
+    );
     for u in 0..4u8 {
         chips.attach_i2c(0, Ads1115Model::new(0x48 + u, move |_| [0.5, 1.0, 1.5, 2.0].map(|v| v + f64::from(u))));
     }

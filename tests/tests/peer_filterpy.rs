@@ -63,13 +63,7 @@ impl Space<f64, 2> for RangeBearing {
 }
 
 fn fx(x: &SVector<f64, 5>) -> SVector<f64, 5> {
-    SVector::<f64, 5>::new(
-        x[0] + x[2] * x[3].cos() * DT,
-        x[1] + x[2] * x[3].sin() * DT,
-        x[2],
-        wrap_pi(x[3] + x[4] * DT),
-        x[4],
-    )
+    SVector::<f64, 5>::new(x[0] + x[2] * x[3].cos() * DT, x[1] + x[2] * x[3].sin() * DT, x[2], wrap_pi(x[3] + x[4] * DT), x[4])
 }
 fn hx2(x: &SVector<f64, 5>) -> SVector<f64, 2> {
     let (dx, dy) = (x[0] - BEACON[0], x[1] - BEACON[1]);
@@ -121,9 +115,8 @@ fn ukf_matches_filterpy_unscented_kalman_filter() {
     let r1 = diag([sr * sr]);
     let configs = [(0.5, 2.0, -2.0), (0.1, 2.0, 0.0), (1.0, 0.0, 1.0)];
 
-    let to_rows = |m: &dyn Fn(usize, usize) -> f64, n: usize| -> Vec<Vec<f64>> {
-        (0..n).map(|i| (0..n).map(|j| m(i, j)).collect()).collect()
-    };
+    let to_rows =
+        |m: &dyn Fn(usize, usize) -> f64, n: usize| -> Vec<Vec<f64>> { (0..n).map(|i| (0..n).map(|j| m(i, j)).collect()).collect() };
     let problem = serde_json::json!({
         "dt": DT,
         "beacon": BEACON,

@@ -12,15 +12,15 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-use serde_json::{json, Value};
+use serde_json::{Value, json};
 use subnav_host::fgo::factors::Factor;
+use subnav_host::fgo::nalgebra::{DMatrix, Matrix3, Vector3};
 use subnav_host::fgo::preintegration::{ImuParams, Preintegrated};
-use subnav_host::fgo::sim::{simulate, SimConfig};
-use subnav_host::fgo::smoother::{self, imu_pieces, SmootherConfig};
+use subnav_host::fgo::sim::{SimConfig, simulate};
+use subnav_host::fgo::smoother::{self, SmootherConfig, imu_pieces};
 use subnav_host::fgo::so3;
 use subnav_host::fgo::solver::{self, LmOptions};
 use subnav_host::fgo::state::{ImuBias, NavState};
-use subnav_host::fgo::nalgebra::{DMatrix, Matrix3, Vector3};
 
 fn run_peer(script: &str, input: &Value) -> Value {
     let py = subnav_tests::peer_python();
@@ -71,10 +71,7 @@ fn preint_case(name: &str, pieces: &[[f64; 7]], bias_hat: ImuBias, params: ImuPa
         pim.integrate(&Vector3::new(p[0], p[1], p[2]), &Vector3::new(p[3], p[4], p[5]), p[6]).expect("valid sample");
     }
     let state_i = NavState::new(so3::exp(&Vector3::new(0.2, -0.1, 1.3)), Vector3::new(10.0, -20.0, -35.0), Vector3::new(1.2, 0.4, -0.05));
-    let bias2 = ImuBias::new(
-        bias_hat.acc_mps2 + Vector3::new(2e-3, -1e-3, 3e-3),
-        bias_hat.gyro_radps + Vector3::new(-2e-4, 3e-4, 1e-4),
-    );
+    let bias2 = ImuBias::new(bias_hat.acc_mps2 + Vector3::new(2e-3, -1e-3, 3e-3), bias_hat.gyro_radps + Vector3::new(-2e-4, 3e-4, 1e-4));
     let input = json!({
         "gravity": params.gravity_enu_mps2,
         "acc_cov": m3(&params.acc_cov()), "gyro_cov": m3(&params.gyro_cov()), "int_cov": m3(&params.integration_cov()),
@@ -165,7 +162,9 @@ fn batch_lm_agrees_with_gtsam() {
                 "node": x.node, "vel": v3(&x.vel_dvl_mps), "R_bd": m3(&x.rot_body_dvl), "lever": v3(&x.lever_body_m),
                 "omega": v3(&x.omega_body_radps), "cov": dm(&x.noise.cov),
             })),
-            Factor::Usbl(x) => usbl.push(json!({"node": x.node, "pos": v3(&x.pos_enu_m), "lever": v3(&x.lever_body_m), "cov": dm(&x.noise.cov)})),
+            Factor::Usbl(x) => {
+                usbl.push(json!({"node": x.node, "pos": v3(&x.pos_enu_m), "lever": v3(&x.lever_body_m), "cov": dm(&x.noise.cov)}))
+            }
             Factor::Prior(x) => {
                 assert_eq!(x.node, 0);
                 n_prior += 1;
@@ -175,10 +174,7 @@ fn batch_lm_agrees_with_gtsam() {
     }
     assert_eq!(n_prior, 1);
     assert!(!usbl.is_empty() && !dvl.is_empty());
-    let prior = factors
-        .iter()
-        .find_map(|f| if let Factor::Prior(p) = f { Some(p.clone()) } else { None })
-        .expect("prior factor");
+    let prior = factors.iter().find_map(|f| if let Factor::Prior(p) = f { Some(p.clone()) } else { None }).expect("prior factor");
     let problem = json!({
         "params": params_json(&params),
         "nodes": est.iter().map(|e| json!({

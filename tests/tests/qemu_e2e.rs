@@ -71,10 +71,7 @@ fn commands_are_acknowledged_and_corrupt_frames_reported() {
     .unwrap();
     assert!(outcome.success(), "{outcome:?}");
     let acks: Vec<CommandAck> = msgs.iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(*a) } else { None }).collect();
-    assert_eq!(acks, vec![
-        CommandAck { seq: 1, result: Err(wire::Refusal::OutOfRange) },
-        CommandAck { seq: 2, result: Ok(()) },
-    ]);
+    assert_eq!(acks, vec![CommandAck { seq: 1, result: Err(wire::Refusal::OutOfRange) }, CommandAck { seq: 2, result: Ok(()) },]);
     assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(f) if f.kind == FaultKind::CorruptFrame)));
     // After the rate change the nav messages come at 20 Hz.
     let nav_t: Vec<u64> = msgs.iter().filter_map(|m| if let Uplink::Nav(n) = m { Some(n.t_us) } else { None }).collect();
@@ -98,11 +95,13 @@ fn runs_are_deterministic() {
         let bytes = std::fs::read(&p).unwrap();
         let mut dec = subnav_host::link::UplinkDecoder::new();
         let mut msgs = vec![];
-        dec.feed(&bytes, |e| if let LinkEvent::Message(mut m) = e {
-            if let Uplink::Health(h) = &mut m {
-                h.cpu_load_permille = 0;
+        dec.feed(&bytes, |e| {
+            if let LinkEvent::Message(mut m) = e {
+                if let Uplink::Health(h) = &mut m {
+                    h.cpu_load_permille = 0;
+                }
+                msgs.push(format!("{m:?}"));
             }
-            msgs.push(format!("{m:?}"));
         });
         recs.push(msgs);
     }
@@ -130,7 +129,9 @@ fn recorded_run_with_spliced_garbage_decodes_every_intact_frame() {
         if b == 0 {
             if frame_idx % 5 == 4 && current.len() > 3 {
                 current[1] ^= 0x5a; // a bit-level corruption inside the frame
-                if current[1] == 0 { current[1] = 0x01; }
+                if current[1] == 0 {
+                    current[1] = 0x01;
+                }
                 bad_expected += 1;
             } else {
                 intact_expected += 1;
@@ -148,7 +149,11 @@ fn recorded_run_with_spliced_garbage_decodes_every_intact_frame() {
     std::fs::write(&path, &spliced).unwrap();
     let mut dec = subnav_host::link::UplinkDecoder::new();
     let mut got = vec![];
-    dec.feed(&spliced, |e| if let LinkEvent::Message(m) = e { got.push(m) });
+    dec.feed(&spliced, |e| {
+        if let LinkEvent::Message(m) = e {
+            got.push(m)
+        }
+    });
     assert_eq!(dec.stats().frames_ok, intact_expected);
     assert_eq!(dec.stats().frames_bad, bad_expected);
     // Every intact frame decodes to what the live run saw.

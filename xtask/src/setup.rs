@@ -55,7 +55,8 @@ pub fn peer_venv() -> Result<PathBuf> {
         return Ok(python);
     }
     if !python.exists() {
-        run(Command::new("python3").args(["-m", "venv"]).arg(&venv)).context("python3 -m venv failed (Debian: apt-get install python3-venv)")?;
+        run(Command::new("python3").args(["-m", "venv"]).arg(&venv))
+            .context("python3 -m venv failed (Debian: apt-get install python3-venv)")?;
     }
     run(Command::new(&python).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "-r"]).arg(&req))?;
     std::fs::write(&stamp, wanted)?;

@@ -48,10 +48,7 @@ pub fn report(board: Board, elf_path: &Path) -> Result<Report> {
 }
 
 fn heap_symbols(file: &object::File) -> Vec<String> {
-    file.symbols()
-        .filter_map(|s| s.name().ok().map(str::to_owned))
-        .filter(|n| HEAP_MARKERS.iter().any(|m| n.starts_with(m)))
-        .collect()
+    file.symbols().filter_map(|s| s.name().ok().map(str::to_owned)).filter(|n| HEAP_MARKERS.iter().any(|m| n.starts_with(m))).collect()
 }
 
 pub fn print(reports: &[Report]) {

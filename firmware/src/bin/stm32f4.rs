@@ -89,14 +89,11 @@ fn main() -> ! {
     core.SYST.enable_counter();
 
     let gpioa = dp.GPIOA.split(&mut rcc);
-    let serial: Serial<pac::USART2> = match dp.USART2.serial(
-        (gpioa.pa2, gpioa.pa3),
-        serial::Config::default().baudrate(460_800.bps()),
-        &mut rcc,
-    ) {
-        Ok(s) => s,
-        Err(_) => defmt::panic!("USART2 configuration rejected"),
-    };
+    let serial: Serial<pac::USART2> =
+        match dp.USART2.serial((gpioa.pa2, gpioa.pa3), serial::Config::default().baudrate(460_800.bps()), &mut rcc) {
+            Ok(s) => s,
+            Err(_) => defmt::panic!("USART2 configuration rejected"),
+        };
     let (tx, mut rx) = serial.split();
     let mut sink = UartSink(tx);
 

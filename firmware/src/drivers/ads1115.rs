@@ -159,10 +159,7 @@ impl<I2C: I2c> PolarizationAdcs<I2C> {
         self.slots = core::array::from_fn(|_| Slot::Pending(0));
         let mut out: [Result<(), Error<I2C::Error>>; UNITS] = core::array::from_fn(|_| Ok(()));
         for (adc, r) in self.adcs.iter_mut().zip(out.iter_mut()) {
-            *r = adc
-                .set_full_scale_range(cfg.fsr)
-                .and_then(|()| adc.set_data_rate(cfg.rate))
-                .map_err(map_err);
+            *r = adc.set_full_scale_range(cfg.fsr).and_then(|()| adc.set_data_rate(cfg.rate)).map_err(map_err);
         }
         out
     }
@@ -384,11 +381,13 @@ mod tests {
             t.push(read_reg(addr, 0x01, c0 & !OS));
         }
         let mut bus0 = Mock::new(&t);
-        let others: Vec<Mock> = (1..4).map(|u| {
-            let mut t = init_transactions(ADDRESSES[u]);
-            t.extend(scan_transactions(ADDRESSES[u], [1, 2, 3, 4]));
-            Mock::new(&t)
-        }).collect();
+        let others: Vec<Mock> = (1..4)
+            .map(|u| {
+                let mut t = init_transactions(ADDRESSES[u]);
+                t.extend(scan_transactions(ADDRESSES[u], [1, 2, 3, 4]));
+                Mock::new(&t)
+            })
+            .collect();
         let buses = [bus0.clone(), others[0].clone(), others[1].clone(), others[2].clone()];
         let mut adcs = PolarizationAdcs::new(buses, AdcConfig { max_polls: 2, ..AdcConfig::default() });
         assert!(adcs.init().iter().all(|r| r.is_ok()));

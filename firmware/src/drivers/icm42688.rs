@@ -330,9 +330,7 @@ impl<SPI: SpiDevice> Icm42688<SPI> {
     /// Burst-read temperature, accel and gyro registers.
     pub fn read_raw(&mut self) -> Result<RawImu, Error<SPI::Error>> {
         let mut b = [0u8; 14];
-        self.spi
-            .transaction(&mut [Operation::Write(&[reg::TEMP_DATA1 | SPI_READ]), Operation::Read(&mut b)])
-            .map_err(Error::Bus)?;
+        self.spi.transaction(&mut [Operation::Write(&[reg::TEMP_DATA1 | SPI_READ]), Operation::Read(&mut b)]).map_err(Error::Bus)?;
         let w = |i: usize| i16::from_be_bytes([b.get(i).copied().unwrap_or(0), b.get(i + 1).copied().unwrap_or(0)]);
         Ok(RawImu { temp: w(0), accel: [w(2), w(4), w(6)], gyro: [w(8), w(10), w(12)] })
     }

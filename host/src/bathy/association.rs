@@ -75,9 +75,7 @@ fn profile(points: &[Point], o: V2, f: V2, s: V2) -> Profile {
 /// formed (first pings, too few soundings).
 pub fn associate(points: &[Vec<Point>], nav: &[NavSample], cfg: &AssocConfig) -> Vec<Option<StepAssociation>> {
     let k = cfg.history.max(2);
-    (0..points.len().min(nav.len()))
-        .map(|i| if i < k { None } else { associate_step(points, nav, i, k, cfg) })
-        .collect()
+    (0..points.len().min(nav.len())).map(|i| if i < k { None } else { associate_step(points, nav, i, k, cfg) }).collect()
 }
 
 fn associate_step(points: &[Vec<Point>], nav: &[NavSample], i: usize, k: usize, cfg: &AssocConfig) -> Option<StepAssociation> {

@@ -210,7 +210,14 @@ pub enum Distribution {
 /// Per-ping offsets from keyframe offsets. `step_var[i]` is the variance of step (i-1 -> i),
 /// `extra_stiffness[i]` added information on that step (weak association), keys ascending.
 /// Before the first key the offset ramps from 0 at ping 0; after the last key it stays constant.
-pub fn distribute(n: usize, keys: &[usize], key_e: &[V2], step_var: &[f64], extra_stiffness: Option<&[f64]>, mode: Distribution) -> Vec<V2> {
+pub fn distribute(
+    n: usize,
+    keys: &[usize],
+    key_e: &[V2],
+    step_var: &[f64],
+    extra_stiffness: Option<&[f64]>,
+    mode: Distribution,
+) -> Vec<V2> {
     let mut out = vec![V2::zeros(); n];
     if n == 0 {
         return out;

@@ -78,7 +78,11 @@ impl Grid {
         // which removes the first-order bias of uneven sampling (exact on planes).
         let raw = self.data.clone();
         let at = |r: isize, c: isize| -> f64 {
-            if r < 0 || c < 0 || r as usize >= self.rows || c as usize >= self.cols { f64::NAN } else { raw[r as usize * self.cols + c as usize] }
+            if r < 0 || c < 0 || r as usize >= self.rows || c as usize >= self.cols {
+                f64::NAN
+            } else {
+                raw[r as usize * self.cols + c as usize]
+            }
         };
         for r in 0..self.rows as isize {
             for c in 0..self.cols as isize {

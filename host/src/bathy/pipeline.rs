@@ -4,7 +4,7 @@
 //! differences, closure errors).
 
 use super::association::{self, AssocConfig};
-use super::correction::{self, Closure, DriftConfig, DriftIndex, Distribution, VoteConfig};
+use super::correction::{self, Closure, Distribution, DriftConfig, DriftIndex, VoteConfig};
 use super::grid::Grid;
 use super::matching::{self, MatchConfig, MatchResult, Rejection};
 use super::points;
@@ -113,10 +113,8 @@ pub fn run(survey: &Survey, cfg: &PipelineConfig) -> Result<PipelineOutput> {
     let submaps = submap::build(&pts, &pos, &heading, &cfg.submap);
     let t1 = Instant::now();
     let assoc = association::associate(&pts, nav, &cfg.assoc);
-    let extra: Vec<f64> = assoc
-        .iter()
-        .map(|a| a.map_or(0.0, |a| cfg.drift.assoc_weight * a.info.symmetric_eigenvalues().min().max(0.0)))
-        .collect();
+    let extra: Vec<f64> =
+        assoc.iter().map(|a| a.map_or(0.0, |a| cfg.drift.assoc_weight * a.info.symmetric_eigenvalues().min().max(0.0))).collect();
     let t2 = Instant::now();
     let step_var = correction::step_variances(nav, cfg.drift.q_dist_m2_per_m);
     let spring_var = correction::step_variances(nav, cfg.drift.q_dist_spring_m2_per_m);
@@ -217,10 +215,7 @@ fn bbox_overlap_area(a: &Grid, b: &Grid, shift: V2, grow: f64) -> f64 {
 
 /// Navigation corrected with per-ping offsets.
 pub fn corrected_nav(nav: &[NavSample], offsets: &[V2]) -> Vec<NavSample> {
-    nav.iter()
-        .zip(offsets)
-        .map(|(n, o)| NavSample { north_m: n.north_m - o.x, east_m: n.east_m - o.y, ..*n })
-        .collect()
+    nav.iter().zip(offsets).map(|(n, o)| NavSample { north_m: n.north_m - o.x, east_m: n.east_m - o.y, ..*n }).collect()
 }
 
 /// Grid of all soundings placed with the given offsets.
@@ -313,7 +308,8 @@ pub fn line_segments(nav: &[NavSample], min_len_m: f64) -> Vec<(usize, usize, f6
         if e <= s + 1 {
             return;
         }
-        let len: f64 = (s + 1..=e).map(|i| ((nav[i].north_m - nav[i - 1].north_m).powi(2) + (nav[i].east_m - nav[i - 1].east_m).powi(2)).sqrt()).sum();
+        let len: f64 =
+            (s + 1..=e).map(|i| ((nav[i].north_m - nav[i - 1].north_m).powi(2) + (nav[i].east_m - nav[i - 1].east_m).powi(2)).sqrt()).sum();
         if len >= min_len_m {
             out.push((s, e, nav[(s + e) / 2].heading_rad));
         }
@@ -332,10 +328,13 @@ pub fn line_segments(nav: &[NavSample], min_len_m: f64) -> Vec<(usize, usize, f6
 pub fn crossline_stats(survey: &Survey, offsets: Option<&[V2]>, cell_m: f64, min_len_m: f64) -> CrosslineStats {
     let pts = points::survey_points(survey, offsets);
     let segs = line_segments(&survey.nav, min_len_m);
-    let grids: Vec<Option<Grid>> = segs.iter().map(|&(s, e, _)| {
-        let p: Vec<Point> = pts[s..=e].iter().flatten().copied().collect();
-        Grid::from_points(&p, cell_m, 0)
-    }).collect();
+    let grids: Vec<Option<Grid>> = segs
+        .iter()
+        .map(|&(s, e, _)| {
+            let p: Vec<Point> = pts[s..=e].iter().flatten().copied().collect();
+            Grid::from_points(&p, cell_m, 0)
+        })
+        .collect();
     let (mut sa, mut s2, mut n, mut pairs) = (0.0, 0.0, 0usize, 0usize);
     for i in 0..segs.len() {
         for j in i + 1..segs.len() {
@@ -433,7 +432,8 @@ pub fn evaluate(sim: &SimOutput, out: &PipelineOutput, cfg: &PipelineConfig) -> 
         }
     }
     ce.kept_error = ErrorStats::of(kept_err);
-    let path_m = sim.truth_nav.windows(2).map(|w| ((w[1].north_m - w[0].north_m).powi(2) + (w[1].east_m - w[0].east_m).powi(2)).sqrt()).sum();
+    let path_m =
+        sim.truth_nav.windows(2).map(|w| ((w[1].north_m - w[0].north_m).powi(2) + (w[1].east_m - w[0].east_m).powi(2)).sqrt()).sum();
     Evaluation {
         pings: sim.survey.pings.len(),
         soundings: sim.survey.pings.iter().map(|p| p.beams.len()).sum(),

@@ -91,9 +91,7 @@ pub fn maps(path: &Path, panels: &[(&str, &Grid, Vec<(&str, RGBColor, &[NavSampl
             }))
             .map_err(err)?;
         for (label, col, nav) in tracks {
-            let s = chart
-                .draw_series(LineSeries::new(nav.iter().map(|n| (n.east_m, n.north_m)), col.stroke_width(2)))
-                .map_err(err)?;
+            let s = chart.draw_series(LineSeries::new(nav.iter().map(|n| (n.east_m, n.north_m)), col.stroke_width(2))).map_err(err)?;
             if text {
                 let c = *col;
                 s.label(*label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
@@ -137,9 +135,12 @@ pub fn error_histograms(path: &Path, sets: &[(&str, &[f64])]) -> Result<()> {
             chart.configure_mesh().x_desc("sounding position error (m)").y_desc("fraction").draw().map_err(err)?;
         }
         chart
-            .draw_series(counts.iter().enumerate().map(|(k, c)| {
-                Rectangle::new([(k as f64 * bw, 0.0), ((k + 1) as f64 * bw, *c as f64 / total)], BLUE.mix(0.6).filled())
-            }))
+            .draw_series(
+                counts
+                    .iter()
+                    .enumerate()
+                    .map(|(k, c)| Rectangle::new([(k as f64 * bw, 0.0), ((k + 1) as f64 * bw, *c as f64 / total)], BLUE.mix(0.6).filled())),
+            )
             .map_err(err)?;
     }
     root.present().map_err(err)?;

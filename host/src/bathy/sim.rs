@@ -173,7 +173,11 @@ fn ray_cast(terrain: &Grid, n: f64, e: f64, depth: f64, heading: f64, beta: f64,
     let (mut lo, mut hi) = (prev, s);
     for _ in 0..30 {
         let mid = 0.5 * (lo + hi);
-        if at(mid)? > 0.0 { lo = mid } else { hi = mid }
+        if at(mid)? > 0.0 {
+            lo = mid
+        } else {
+            hi = mid
+        }
         if hi - lo < 1e-4 {
             break;
         }
@@ -207,7 +211,8 @@ pub fn simulate(cfg: &SimConfig, seed: u64) -> SimOutput {
     let mut speed = seg_speed;
     let mut dropout_left = 0.0;
 
-    let mut out = SimOutput { survey: Survey::default(), truth_nav: vec![], truth_points: vec![], terrain: Grid::new_empty(0.0, 0.0, 1.0, 0, 0) };
+    let mut out =
+        SimOutput { survey: Survey::default(), truth_nav: vec![], truth_points: vec![], terrain: Grid::new_empty(0.0, 0.0, 1.0, 0, 0) };
     let mut t = 0.0;
     let max_range = cfg.altitude_m * 10.0;
     while seg < wps.len() && out.survey.pings.len() < cfg.max_pings {
@@ -265,8 +270,27 @@ pub fn simulate(cfg: &SimConfig, seed: u64) -> SimOutput {
             break;
         }
         let Some(want) = want else { break };
-        advance(cfg, &mut rng, &terrain, dt, current, dvl_scale, heading_bias, &mut heading_rw, water, &mut dropout_left,
-                &mut n, &mut e, &mut depth, &mut psi, &mut speed, seg_speed, &mut dr_n, &mut dr_e, Some(want));
+        advance(
+            cfg,
+            &mut rng,
+            &terrain,
+            dt,
+            current,
+            dvl_scale,
+            heading_bias,
+            &mut heading_rw,
+            water,
+            &mut dropout_left,
+            &mut n,
+            &mut e,
+            &mut depth,
+            &mut psi,
+            &mut speed,
+            seg_speed,
+            &mut dr_n,
+            &mut dr_e,
+            Some(want),
+        );
         t += dt;
     }
     out.terrain = terrain;

@@ -21,7 +21,14 @@ pub struct SubmapConfig {
 impl SubmapConfig {
     /// Defaults scaled by the survey altitude (swath ~10x altitude).
     pub fn for_altitude(alt_m: f64) -> Self {
-        Self { cell_m: (alt_m / 10.0).max(0.5), min_len_m: 4.0 * alt_m, max_len_m: 10.0 * alt_m, info_target: 4.0, r1_m: alt_m / 10.0, r2_m: alt_m / 2.5 }
+        Self {
+            cell_m: (alt_m / 10.0).max(0.5),
+            min_len_m: 4.0 * alt_m,
+            max_len_m: 10.0 * alt_m,
+            info_target: 4.0,
+            r1_m: alt_m / 10.0,
+            r2_m: alt_m / 2.5,
+        }
     }
 }
 

@@ -189,9 +189,8 @@ impl Icm42688Model {
         let gk = Self::sample_index(t_us, self.gyro_on_us, g_period_ns);
         let ak = Self::sample_index(t_us, self.accel_on_us, a_period_ns);
         let mut raw = [i16::MIN; 7];
-        let rot = |m: &[[f64; 3]; 3], v: [f64; 3]| -> [f64; 3] {
-            core::array::from_fn(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
-        };
+        let rot =
+            |m: &[[f64; 3]; 3], v: [f64; 3]| -> [f64; 3] { core::array::from_fn(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2]) };
         // The input is read at the sample instant of each sensor.
         if let Some(k) = ak {
             let input = (self.source)(k * a_period_ns / 1000);
@@ -392,7 +391,8 @@ mod tests {
 
     #[test]
     fn data_ready_config_faults_and_reset() {
-        let mut m = Icm42688Model::new(|t| ImuInput { gyro_radps: [t as f64 * 1e-6, 50.0, 0.0], specific_force_mps2: [0.0; 3], temp_c: 25.0 });
+        let mut m =
+            Icm42688Model::new(|t| ImuInput { gyro_radps: [t as f64 * 1e-6, 50.0, 0.0], specific_force_mps2: [0.0; 3], temp_c: 25.0 });
         write(&mut m, 0, 0x4F, (3 << 5) | 7); // +-250 deg/s, 200 Hz
         write(&mut m, 0, 0x4E, 0x0F);
         assert_eq!(read(&mut m, 4_999, 0x2D, 1)[0] & 0x08, 0, "no sample before 5 ms");

@@ -46,7 +46,7 @@ use subnav_shared::bridge::{Bus, BusRequest, BusResponse, Op, ReadData};
 pub use subnav_shared::bridge::BusFault;
 
 pub use ads1115::Ads1115Model;
-pub use icm42688::{ImuInput, Icm42688Model};
+pub use icm42688::{Icm42688Model, ImuInput};
 pub use ms5837::{Ms5837Model, PressureInput};
 
 /// A chip on an I2C bus.
@@ -98,7 +98,14 @@ impl Default for BusFaults {
 
 impl BusFaults {
     pub fn seeded(seed: u64) -> Self {
-        Self { nack_next: 0, timeout_next: 0, nack_window_us: None, nack_probability: 0.0, rng: ChaCha8Rng::seed_from_u64(seed), injected: 0 }
+        Self {
+            nack_next: 0,
+            timeout_next: 0,
+            nack_window_us: None,
+            nack_probability: 0.0,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            injected: 0,
+        }
     }
 
     /// NACK with probability `p`, drawn from a generator seeded with `seed`.
@@ -176,12 +183,7 @@ impl ChipSet {
         let mut buf = [0u8; subnav_shared::bridge::MAX_OP_BYTES];
         match req.bus {
             Bus::I2c { bus, address } => {
-                let chip = self
-                    .i2c
-                    .iter_mut()
-                    .find(|(b, c)| *b == bus && c.address() == address)
-                    .map(|(_, c)| c)
-                    .ok_or(BusFault::Nack)?;
+                let chip = self.i2c.iter_mut().find(|(b, c)| *b == bus && c.address() == address).map(|(_, c)| c).ok_or(BusFault::Nack)?;
                 chip.begin(t)?;
                 let r = (|| {
                     for op in ops {

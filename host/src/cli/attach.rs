@@ -49,7 +49,9 @@ pub fn open_session(chip: &str) -> Result<probe_rs::Session> {
     let probes = lister.list_all();
     let info = probes.first().ok_or_else(|| anyhow!("no debug probe found: plug one in (and on Linux install probe-rs udev rules)"))?;
     let probe = info.open().with_context(|| format!("opening the probe {info:?} (permissions? udev rules?)"))?;
-    probe.attach(chip, Permissions::default()).with_context(|| format!("attaching to {chip} (check the chip name with `probe-rs chip list` and the wiring)"))
+    probe
+        .attach(chip, Permissions::default())
+        .with_context(|| format!("attaching to {chip} (check the chip name with `probe-rs chip list` and the wiring)"))
 }
 
 enum In {
@@ -59,7 +61,14 @@ enum In {
 
 /// Stream RTT (and the serial port) until `duration_s` or the link ends; decode and print through
 /// `on_text`, and record to `record` when given.
-pub fn stream_rtt(chip: &str, elf: &Path, serial: Option<(String, u32)>, record: Option<&Path>, duration_s: Option<f64>, mut on_text: impl FnMut(&str)) -> Result<LiveStatus> {
+pub fn stream_rtt(
+    chip: &str,
+    elf: &Path,
+    serial: Option<(String, u32)>,
+    record: Option<&Path>,
+    duration_s: Option<f64>,
+    mut on_text: impl FnMut(&str),
+) -> Result<LiveStatus> {
     let elf_bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
     let table = DefmtTable::from_elf(&elf_bytes)?;
     let cb = probe_rs::rtt::find_rtt_control_block_in_raw_file(&elf_bytes)

@@ -82,7 +82,14 @@ fn estimate_altitude(s: &Survey) -> Option<f64> {
     Some(v[v.len() / 2])
 }
 
-fn write_outputs(dir: &Path, survey: &Survey, out: &PipelineOutput, cfg: &PipelineConfig, plots: bool, truth: Option<&[crate::bathy::NavSample]>) -> Result<()> {
+fn write_outputs(
+    dir: &Path,
+    survey: &Survey,
+    out: &PipelineOutput,
+    cfg: &PipelineConfig,
+    plots: bool,
+    truth: Option<&[crate::bathy::NavSample]>,
+) -> Result<()> {
     let corr = pipeline::corrected_nav(&survey.nav, &out.offsets_spring);
     io::write_nav(&dir.join("trajectory_corrected.csv"), &corr)?;
     let g0 = pipeline::bathymetry(survey, None, cfg.grid_cell_m).context("no soundings to grid")?;
@@ -99,7 +106,10 @@ fn write_outputs(dir: &Path, survey: &Survey, out: &PipelineOutput, cfg: &Pipeli
             left.push(("truth", white, t));
             right.push(("truth", white, t));
         }
-        plot::maps(&dir.join("map_before_after.png"), &[("before: dead reckoning", &g0, left), ("after: graph SLAM + spring", &g1, right)])?;
+        plot::maps(
+            &dir.join("map_before_after.png"),
+            &[("before: dead reckoning", &g0, left), ("after: graph SLAM + spring", &g1, right)],
+        )?;
     }
     Ok(())
 }
@@ -164,7 +174,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             ),
             Format::Text => println!(
                 "{} pings, {} submaps, {} closures attempted, {} kept; largest correction {:.2} m; {:.2} s; outputs in {}",
-                survey.pings.len(), out.submaps.len(), out.attempts.len(), kept, max_off, out.timing.total_s, args.out.display()
+                survey.pings.len(),
+                out.submaps.len(),
+                out.attempts.len(),
+                kept,
+                max_off,
+                out.timing.total_s,
+                args.out.display()
             ),
         }
         return Ok(ExitCode::SUCCESS);
@@ -188,8 +204,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         if format == Format::Text {
             eprintln!(
                 "seed {seed}: {} pings, sim {sim_s:.1} s, slam {:.2} s; sounding error mean DR {:.2} / uniform {:.2} / spring {:.2} m; closures kept {} (false {})",
-                ev.pings, ev.timing.total_s, ev.dead_reckoning.sounding_error.mean_m, ev.uniform.sounding_error.mean_m, ev.spring.sounding_error.mean_m,
-                ev.closures.kept, ev.closures.kept_false
+                ev.pings,
+                ev.timing.total_s,
+                ev.dead_reckoning.sounding_error.mean_m,
+                ev.uniform.sounding_error.mean_m,
+                ev.spring.sounding_error.mean_m,
+                ev.closures.kept,
+                ev.closures.kept_false
             );
         }
         if seed == seeds.start {
@@ -202,13 +223,22 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             if !args.no_plots {
                 let e: Vec<Vec<f64>> = sets.iter().take(3).map(|o| pipeline::sounding_errors(&sim, *o)).collect();
-                plot::error_histograms(&dir.join("error_histograms.png"), &[("dead reckoning", &e[0]), ("uniform", &e[1]), ("spring", &e[2])])?;
+                plot::error_histograms(
+                    &dir.join("error_histograms.png"),
+                    &[("dead reckoning", &e[0]), ("uniform", &e[1]), ("spring", &e[2])],
+                )?;
                 let t: Vec<f64> = sim.survey.nav.iter().map(|n| n.t_s).collect();
                 let err_of = |o: Option<&[V2]>| -> Vec<f64> {
-                    sim.survey.nav.iter().zip(&sim.truth_nav).enumerate().map(|(i, (n, tr))| {
-                        let d = o.map_or(V2::zeros(), |o| o[i]);
-                        ((n.north_m - d.x - tr.north_m).powi(2) + (n.east_m - d.y - tr.east_m).powi(2)).sqrt()
-                    }).collect()
+                    sim.survey
+                        .nav
+                        .iter()
+                        .zip(&sim.truth_nav)
+                        .enumerate()
+                        .map(|(i, (n, tr))| {
+                            let d = o.map_or(V2::zeros(), |o| o[i]);
+                            ((n.north_m - d.x - tr.north_m).powi(2) + (n.east_m - d.y - tr.east_m).powi(2)).sqrt()
+                        })
+                        .collect()
                 };
                 let keys_t: Vec<f64> = out.keys.iter().map(|k| t[*k]).collect();
                 plot::nav_error_over_time(
@@ -238,7 +268,10 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         median_reduction_spring_pct: pct(stats[0].median_m, stats[2].median_m),
         spring_vs_uniform_mean_pct: pct(stats[1].mean_m, stats[2].mean_m),
         spring_vs_uniform_median_pct: pct(stats[1].median_m, stats[2].median_m),
-        seeds_spring_beats_uniform_mean: evals.iter().filter(|(_, e)| e.spring.sounding_error.mean_m < e.uniform.sounding_error.mean_m).count(),
+        seeds_spring_beats_uniform_mean: evals
+            .iter()
+            .filter(|(_, e)| e.spring.sounding_error.mean_m < e.uniform.sounding_error.mean_m)
+            .count(),
         min_seed_mean_reduction_spring_pct: evals
             .iter()
             .map(|(_, e)| pct(e.dead_reckoning.sounding_error.mean_m, e.spring.sounding_error.mean_m))
@@ -270,19 +303,36 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         Format::Text => {
             println!("{} surveys (seeds {:?}), pooled over {} soundings", evals.len(), seeds, p.dead_reckoning.count);
             println!("{:<16} {:>10} {:>10} {:>10}", "method", "mean (m)", "median (m)", "p95 (m)");
-            for (name, s) in [("dead reckoning", &p.dead_reckoning), ("uniform", &p.uniform), ("spring", &p.spring), ("spring (DR only)", &p.spring_dr_only)] {
+            for (name, s) in [
+                ("dead reckoning", &p.dead_reckoning),
+                ("uniform", &p.uniform),
+                ("spring", &p.spring),
+                ("spring (DR only)", &p.spring_dr_only),
+            ] {
                 println!("{name:<16} {:>10.3} {:>10.3} {:>10.3}", s.mean_m, s.median_m, s.p95_m);
             }
             println!(
                 "reduction vs DR: uniform {:.2} % mean / {:.2} % median; spring {:.2} % / {:.2} %; spring vs uniform {:.2} % / {:.2} %",
-                p.mean_reduction_uniform_pct, p.median_reduction_uniform_pct, p.mean_reduction_spring_pct, p.median_reduction_spring_pct,
-                p.spring_vs_uniform_mean_pct, p.spring_vs_uniform_median_pct
+                p.mean_reduction_uniform_pct,
+                p.median_reduction_uniform_pct,
+                p.mean_reduction_spring_pct,
+                p.median_reduction_spring_pct,
+                p.spring_vs_uniform_mean_pct,
+                p.spring_vs_uniform_median_pct
             );
             println!(
                 "crossline |dz| mean: DR {:.3} m, uniform {:.3} m, spring {:.3} m; closures kept {} ({} > 5 m off), closure error mean {:.2} m",
-                p.crossline_mean_abs_dr_m, p.crossline_mean_abs_uniform_m, p.crossline_mean_abs_spring_m, p.closures_kept, p.closures_kept_false, p.closure_error_mean_m
+                p.crossline_mean_abs_dr_m,
+                p.crossline_mean_abs_uniform_m,
+                p.crossline_mean_abs_spring_m,
+                p.closures_kept,
+                p.closures_kept_false,
+                p.closure_error_mean_m
             );
-            println!("survey {:.0} s, processing {:.2} s: {:.0}x real time", p.survey_duration_mean_s, p.processing_mean_s, p.speedup_vs_real_time);
+            println!(
+                "survey {:.0} s, processing {:.2} s: {:.0}x real time",
+                p.survey_duration_mean_s, p.processing_mean_s, p.speedup_vs_real_time
+            );
         }
     }
     Ok(ExitCode::SUCCESS)

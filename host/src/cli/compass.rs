@@ -116,14 +116,27 @@ fn simulate(args: &Args, format: Format) -> Result<ExitCode> {
         Format::Text => {
             println!(
                 "heading Monte Carlo: {} draws at {} m, sun {}-{} deg: {} fixes, RMSE {:.4} deg, mean {:+.4} deg, p95 |err| {:.4} deg, max {:.4} deg",
-                r.draws, r.depth_m, r.elevation_deg[0], r.elevation_deg[1], r.fixes, r.rmse_deg, r.mean_error_deg, r.p95_abs_error_deg, r.max_abs_error_deg
+                r.draws,
+                r.depth_m,
+                r.elevation_deg[0],
+                r.elevation_deg[1],
+                r.fixes,
+                r.rmse_deg,
+                r.mean_error_deg,
+                r.p95_abs_error_deg,
+                r.max_abs_error_deg
             );
             println!(
                 "reported 1-sigma (RMS) {:.4} deg, {:.1}% of errors within 2 sigma, mean unit DoLP {:.3}",
-                r.rms_reported_sigma_deg, 100.0 * r.within_2_sigma, r.mean_dolp
+                r.rms_reported_sigma_deg,
+                100.0 * r.within_2_sigma,
+                r.mean_dolp
             );
             for b in &r.bins {
-                println!("  sun {:>5.1}-{:>5.1} deg: {:>5} fixes, RMSE {:.4} deg", b.elevation_deg[0], b.elevation_deg[1], b.fixes, b.rmse_deg);
+                println!(
+                    "  sun {:>5.1}-{:>5.1} deg: {:>5} fixes, RMSE {:.4} deg",
+                    b.elevation_deg[0], b.elevation_deg[1], b.fixes, b.rmse_deg
+                );
             }
             for (k, v) in &r.no_fix {
                 println!("  no fix {k}: {v}");
@@ -152,8 +165,15 @@ fn geolocate(args: &Args, format: Format) -> Result<ExitCode> {
         Format::Json => println!("{}", serde_json::to_string(&r)?),
         Format::Text => println!(
             "sun geolocation: {} trials of {} s tracks ({:.1} fixes each), heading 1-sigma {} deg {}, {} fitted: mean error {:.2} km, median {:.2} km, max {:.2} km",
-            r.trials, r.duration_s, r.samples_per_trial, r.heading_sigma_deg,
-            if r.fit_azimuth_offset { "(offset fitted)" } else { "(taken as known)" }, r.fitted, r.mean_error_km, r.median_error_km, r.max_error_km
+            r.trials,
+            r.duration_s,
+            r.samples_per_trial,
+            r.heading_sigma_deg,
+            if r.fit_azimuth_offset { "(offset fitted)" } else { "(taken as known)" },
+            r.fitted,
+            r.mean_error_km,
+            r.median_error_km,
+            r.max_error_km
         ),
     }
     Ok(ExitCode::SUCCESS)
@@ -227,7 +247,11 @@ fn parse_row(line: &str, n_units: usize) -> Result<Row> {
     let obs = if f[1].is_empty() || f[2].is_empty() {
         None
     } else {
-        Some(Observer { lat_rad: num(f[1], "lat_deg")?.to_radians() as f32, lon_rad: num(f[2], "lon_deg")?.to_radians() as f32, height_m: 0.0 })
+        Some(Observer {
+            lat_rad: num(f[1], "lat_deg")?.to_radians() as f32,
+            lon_rad: num(f[2], "lon_deg")?.to_radians() as f32,
+            height_m: 0.0,
+        })
     };
     let accel = [num(f[3], "ax")? as f32, num(f[4], "ay")? as f32, num(f[5], "az")? as f32];
     let mut counts = Vec::with_capacity(n_units);
@@ -314,7 +338,11 @@ fn from_csv(path: &std::path::Path, format: Format) -> Result<ExitCode> {
         }
     }
     if format == Format::Text {
-        let rmse = if truth_col.is_some() && fixes > 0 { format!(", heading RMSE vs true_yaw_deg {:.4} deg", (sq / fixes as f64).sqrt().to_degrees()) } else { String::new() };
+        let rmse = if truth_col.is_some() && fixes > 0 {
+            format!(", heading RMSE vs true_yaw_deg {:.4} deg", (sq / fixes as f64).sqrt().to_degrees())
+        } else {
+            String::new()
+        };
         println!("{rows} rows, {fixes} fixes, {bad} unreadable{rmse}");
     }
     Ok(if bad > 0 { ExitCode::from(2) } else { ExitCode::SUCCESS })
@@ -339,7 +367,8 @@ mod tests {
         for line in lines {
             let row = parse_row(line, 8).unwrap();
             let truth: f64 = line.rsplit(',').next().unwrap().parse().unwrap();
-            let input = CompassInput { counts: &row.counts, accel_body_mps2: row.accel, unix_us: row.t, observer: row.obs, delta_t_s: 70.0 };
+            let input =
+                CompassInput { counts: &row.counts, accel_body_mps2: row.accel, unix_us: row.t, observer: row.obs, delta_t_s: 70.0 };
             let fx = compass::solve(&units, &input, &ccfg).unwrap();
             let err = montecarlo::wrap_pi((fx.heading_rad as f64) - truth.to_radians()).to_degrees();
             assert!(err.abs() < 1.0, "{err}");

@@ -84,7 +84,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                     println!("{}: {n} rows", p.display());
                 }
             }
-            Format::Json => result["csv"] = json!(files.iter().map(|(p, n)| json!({"path": p.display().to_string(), "rows": n})).collect::<Vec<_>>()),
+            Format::Json => {
+                result["csv"] = json!(files.iter().map(|(p, n)| json!({"path": p.display().to_string(), "rows": n})).collect::<Vec<_>>())
+            }
         }
     }
     if format == Format::Json {

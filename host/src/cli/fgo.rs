@@ -136,8 +136,30 @@ fn write_estimates(path: &Path, est: &[Estimate]) -> Result<()> {
             writeln!(
                 w,
                 "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-                e.t_s, n.pos_enu_m.x, n.pos_enu_m.y, n.pos_enu_m.z, n.vel_enu_mps.x, n.vel_enu_mps.y, n.vel_enu_mps.z,
-                q.w, q.i, q.j, q.k, ba.x, ba.y, ba.z, bg.x, bg.y, bg.z, ned.x, ned.y, ned.z, qn[0], qn[1], qn[2], qn[3]
+                e.t_s,
+                n.pos_enu_m.x,
+                n.pos_enu_m.y,
+                n.pos_enu_m.z,
+                n.vel_enu_mps.x,
+                n.vel_enu_mps.y,
+                n.vel_enu_mps.z,
+                q.w,
+                q.i,
+                q.j,
+                q.k,
+                ba.x,
+                ba.y,
+                ba.z,
+                bg.x,
+                bg.y,
+                bg.z,
+                ned.x,
+                ned.y,
+                ned.z,
+                qn[0],
+                qn[1],
+                qn[2],
+                qn[3]
             )?;
         }
     }
@@ -189,10 +211,25 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 }
                 Format::Text => {
                     let m = s.mean;
-                    println!("{} runs x {:.0} s, {:.0} % abnormal DVL/USBL observations", s.runs, s.duration_s, 100.0 * s.abnormal_fraction);
+                    println!(
+                        "{} runs x {:.0} s, {:.0} % abnormal DVL/USBL observations",
+                        s.runs,
+                        s.duration_s,
+                        100.0 * s.abnormal_fraction
+                    );
                     println!("position RMSE (mean over runs), m:");
-                    println!("  batch graph  gated {:.3}  ungated {:.3}  -> {:.1} % lower", m.batch_gated_m, m.batch_ungated_m, 100.0 * s.reduction_batch);
-                    println!("  real time    gated {:.3}  ungated {:.3}  -> {:.1} % lower", m.rt_gated_m, m.rt_ungated_m, 100.0 * s.reduction_rt);
+                    println!(
+                        "  batch graph  gated {:.3}  ungated {:.3}  -> {:.1} % lower",
+                        m.batch_gated_m,
+                        m.batch_ungated_m,
+                        100.0 * s.reduction_batch
+                    );
+                    println!(
+                        "  real time    gated {:.3}  ungated {:.3}  -> {:.1} % lower",
+                        m.rt_gated_m,
+                        m.rt_ungated_m,
+                        100.0 * s.reduction_rt
+                    );
                     println!("  shared UKF (gated, p=0.999) {:.3}", m.ukf_m);
                     println!("  gated batch better than ungated in {}/{} runs", s.runs_gated_better, s.runs);
                     println!(

@@ -83,7 +83,14 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             if let Some(p) = truth {
                 let mut s = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
                 for t in &dive.truth {
-                    s.push_str(&format!("{},{},{},{},{}\n", t.t_us as f64 * 1e-6, t.pos_ned_m[0], t.pos_ned_m[1], t.pos_ned_m[2], t.yaw_rad));
+                    s.push_str(&format!(
+                        "{},{},{},{},{}\n",
+                        t.t_us as f64 * 1e-6,
+                        t.pos_ned_m[0],
+                        t.pos_ned_m[1],
+                        t.pos_ned_m[2],
+                        t.yaw_rad
+                    ));
                 }
                 std::fs::write(&p, s).with_context(|| format!("writing {}", p.display()))?;
             }
@@ -107,8 +114,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             };
             std::fs::write(&out, body).with_context(|| format!("writing {}", out.display()))?;
             match format {
-                Format::Text => println!("{} estimates written to {}; events: {:?}; health: {}", r.rows.len(), out.display(), r.counts, r.health),
-                Format::Json => println!("{}", serde_json::json!({"rows": r.rows.len(), "out": out.display().to_string(), "counts": r.counts, "health": r.health})),
+                Format::Text => {
+                    println!("{} estimates written to {}; events: {:?}; health: {}", r.rows.len(), out.display(), r.counts, r.health)
+                }
+                Format::Json => println!(
+                    "{}",
+                    serde_json::json!({"rows": r.rows.len(), "out": out.display().to_string(), "counts": r.counts, "health": r.health})
+                ),
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -129,7 +141,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                     for (name, s) in [("UKF ", &c.ukf), ("AUKF", &c.aukf)] {
                         println!(
                             "{name}: position RMSE {:.3} m, heading RMSE {:.3} deg, divergences {}/{}, mean final horizontal error {:.2} m, worst horizontal {:.2} m, worst heading {:.2} deg, gated {} of {} updates",
-                            s.position_rmse_m, s.heading_rmse_deg, s.divergences, s.runs, s.mean_final_horizontal_m, s.worst_horizontal_m, s.worst_heading_deg, s.gated, s.gated + s.accepted
+                            s.position_rmse_m,
+                            s.heading_rmse_deg,
+                            s.divergences,
+                            s.runs,
+                            s.mean_final_horizontal_m,
+                            s.worst_horizontal_m,
+                            s.worst_heading_deg,
+                            s.gated,
+                            s.gated + s.accepted
                         );
                     }
                     println!("AUKF position RMSE reduction vs UKF: {:.1} %", 100.0 * c.position_rmse_reduction);

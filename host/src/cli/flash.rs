@@ -59,10 +59,20 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let secs = started.elapsed().as_secs_f64();
     match format {
         Format::Text => eprintln!("flashed {} to {} in {secs:.1} s and reset it", args.elf.display(), args.chip),
-        Format::Json => println!("{}", serde_json::json!({"type": "flashed", "elf": args.elf.display().to_string(), "chip": args.chip, "seconds": secs})),
+        Format::Json => println!(
+            "{}",
+            serde_json::json!({"type": "flashed", "elf": args.elf.display().to_string(), "chip": args.chip, "seconds": secs})
+        ),
     }
     if args.attach {
-        let a = super::attach::Args { chip: args.chip, elf: args.elf, serial: args.serial, baud: args.baud, record: args.record, duration_s: args.duration_s };
+        let a = super::attach::Args {
+            chip: args.chip,
+            elf: args.elf,
+            serial: args.serial,
+            baud: args.baud,
+            record: args.record,
+            duration_s: args.duration_s,
+        };
         return super::attach::run(a, format);
     }
     Ok(ExitCode::SUCCESS)

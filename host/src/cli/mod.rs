@@ -1,21 +1,21 @@
 //! Subcommands of the `subnav` binary: one module each, with clap `Args` and
 //! `run(args, format) -> anyhow::Result<ExitCode>`.
 
+#[cfg(feature = "probe")]
+pub mod attach;
 pub mod bathy;
 pub mod compass;
 pub mod decode;
+pub mod export;
 pub mod fgo;
 pub mod filter;
-pub mod print;
-pub mod qemu;
-pub mod sun;
-pub mod record;
-pub mod export;
-pub mod report;
-#[cfg(feature = "probe")]
-pub mod attach;
 #[cfg(feature = "probe")]
 pub mod flash;
+pub mod print;
+pub mod qemu;
+pub mod record;
+pub mod report;
+pub mod sun;
 
 /// `--format`: human text or one JSON object per line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

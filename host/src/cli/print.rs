@@ -20,24 +20,46 @@ pub fn text(m: &Uplink) -> String {
     match m {
         Uplink::Boot(b) => format!(
             "boot    t={} board={:?} firmware={}.{}.{} protocol={} schema={:#018x}",
-            secs(b.t_us), b.board, b.firmware_version[0], b.firmware_version[1], b.firmware_version[2], b.protocol_version, b.schema_fingerprint
+            secs(b.t_us),
+            b.board,
+            b.firmware_version[0],
+            b.firmware_version[1],
+            b.firmware_version[2],
+            b.protocol_version,
+            b.schema_fingerprint
         ),
         Uplink::Nav(n) => format!(
             "nav     t={} mode={:?} pos_ned_m={} vel_ned_mps={} sigma_pos_m={}",
-            secs(n.t_us), n.mode, v3(&n.pos_ned_m), v3(&n.vel_ned_mps), v3(&n.sigma_pos_m)
+            secs(n.t_us),
+            n.mode,
+            v3(&n.pos_ned_m),
+            v3(&n.vel_ned_mps),
+            v3(&n.sigma_pos_m)
         ),
-        Uplink::Raw(RawSample::Imu(s)) => format!("imu     t={} gyro_radps={} accel_mps2={}", secs(s.t_us), v3(&s.gyro_radps), v3(&s.accel_mps2)),
+        Uplink::Raw(RawSample::Imu(s)) => {
+            format!("imu     t={} gyro_radps={} accel_mps2={}", secs(s.t_us), v3(&s.gyro_radps), v3(&s.accel_mps2))
+        }
         Uplink::Raw(RawSample::Polarization(s)) => format!("polar   t={} unit={} counts={:?}", secs(s.t_us), s.unit, s.counts),
-        Uplink::Raw(RawSample::Depth(s)) => format!("depth   t={} pressure_pa={:.1} depth_m={:.3} temp_c={:.2}", secs(s.t_us), s.pressure_pa, s.depth_m, s.temp_c),
+        Uplink::Raw(RawSample::Depth(s)) => {
+            format!("depth   t={} pressure_pa={:.1} depth_m={:.3} temp_c={:.2}", secs(s.t_us), s.pressure_pa, s.depth_m, s.temp_c)
+        }
         Uplink::Compass(c) => format!(
             "compass t={} heading_deg={} sigma_deg={:.3} units={} no_fix_reason={}",
             secs(c.t_us),
             c.heading_rad.map(|h| format!("{:.3}", h.to_degrees())).unwrap_or_else(|| "none".into()),
-            c.sigma_heading_rad.to_degrees(), c.units_used, c.no_fix_reason
+            c.sigma_heading_rad.to_degrees(),
+            c.units_used,
+            c.no_fix_reason
         ),
         Uplink::Health(h) => format!(
             "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} gate_rejects={} nonfinite={}",
-            secs(h.t_us), h.cpu_load_permille as f32 / 10.0, h.lambda, h.nis, h.pd_repairs, h.gate_rejects, h.nonfinite_rejects
+            secs(h.t_us),
+            h.cpu_load_permille as f32 / 10.0,
+            h.lambda,
+            h.nis,
+            h.pd_repairs,
+            h.gate_rejects,
+            h.nonfinite_rejects
         ),
         Uplink::Fault(f) => format!("FAULT   t={} source={:?} kind={:?} count={}", secs(f.t_us), f.source, f.kind, f.count),
         Uplink::Ack(a) => format!("ack     seq={} result={:?}", a.seq, a.result),

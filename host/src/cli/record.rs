@@ -79,7 +79,9 @@ impl LiveStatus {
     pub fn see(&mut self, e: &LinkEvent) {
         if let LinkEvent::Message(m) = e {
             match m {
-                Uplink::Nav(n) if n.mode != NavMode::Uninitialised => self.latest_fix = Some((n.t_us, n.pos_ned_m, format!("{:?}", n.mode))),
+                Uplink::Nav(n) if n.mode != NavMode::Uninitialised => {
+                    self.latest_fix = Some((n.t_us, n.pos_ned_m, format!("{:?}", n.mode)))
+                }
                 Uplink::Fault(f) if f.kind == FaultKind::TelemetryDropped => self.dropped_by_firmware = u64::from(f.count),
                 _ => {}
             }
@@ -106,7 +108,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let source = match (&args.tcp, &args.serial) {
         (Some(t), _) => Source::Tcp(t.clone()),
         (_, Some(s)) => Source::Serial { path: s.clone(), baud: args.baud },
-        _ => bail!("say where the telemetry comes from: --tcp HOST:PORT, --serial DEVICE [--baud N], or --chip CHIP --elf ELF (probe builds)"),
+        _ => bail!(
+            "say where the telemetry comes from: --tcp HOST:PORT, --serial DEVICE [--baud N], or --chip CHIP --elf ELF (probe builds)"
+        ),
     };
     let mut meta = Meta::new(source.to_string());
     meta.elf = args.elf.as_ref().map(|p| p.display().to_string());
@@ -156,5 +160,7 @@ fn record_rtt(args: &Args, chip: &str, format: Format) -> Result<ExitCode> {
 
 #[cfg(not(feature = "probe"))]
 fn record_rtt(_args: &Args, _chip: &str, _format: Format) -> Result<ExitCode> {
-    bail!("this subnav was built without debug-probe support: rebuild with `cargo build -p subnav-host --features probe` to record RTT with --chip")
+    bail!(
+        "this subnav was built without debug-probe support: rebuild with `cargo build -p subnav-host --features probe` to record RTT with --chip"
+    )
 }

@@ -51,7 +51,14 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             let opt = report::dive::DiveOptions { seed, duration_s: args.duration_s, ..Default::default() };
             let s = report::dive::write_recording(&p, &opt)?;
             bar.finish_and_clear();
-            eprintln!("simulated dive: {} nav, {} health, {} fault messages, {} truth rows -> {}", s.nav, s.health, s.faults, s.truth_rows, p.display());
+            eprintln!(
+                "simulated dive: {} nav, {} health, {} fault messages, {} truth rows -> {}",
+                s.nav,
+                s.health,
+                s.faults,
+                s.truth_rows,
+                p.display()
+            );
             p
         }
         (None, None) => anyhow::bail!("give a recording, or --simulate-dive SEED"),

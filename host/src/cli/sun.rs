@@ -57,7 +57,12 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match format {
         Format::Text => println!(
             "apparent zenith {:.5} deg, azimuth {:.5} deg (geometric zenith {:.5} deg, apparent elevation {:.5} deg, declination {:.5} deg, delta T {:.1} s)",
-            d(p.apparent_zenith_rad), d(p.azimuth_rad), d(p.zenith_rad), 90.0 - d(p.apparent_zenith_rad), d(p.declination_rad), dt
+            d(p.apparent_zenith_rad),
+            d(p.azimuth_rad),
+            d(p.zenith_rad),
+            90.0 - d(p.apparent_zenith_rad),
+            d(p.declination_rad),
+            dt
         ),
         Format::Json => println!(
             "{}",

@@ -38,9 +38,7 @@ fn ephem_unit(t: i64, lat: f64, lon: f64) -> Option<Vector3<f64>> {
 
 fn cost(obs: &[SunObs], lat: f64, lon: f64, az_offset: f64) -> f64 {
     obs.iter()
-        .map(|o| {
-            ephem_unit(o.unix_us, lat, lon).map_or(4.0, |u| (u - unit(o.azimuth_rad + az_offset, o.elevation_rad)).norm_squared())
-        })
+        .map(|o| ephem_unit(o.unix_us, lat, lon).map_or(4.0, |u| (u - unit(o.azimuth_rad + az_offset, o.elevation_rad)).norm_squared()))
         .sum()
 }
 

@@ -205,8 +205,7 @@ impl Field {
             let g = (-w.c_per_m * z0 / mu).exp() * path;
             let cos_g = beam.k.dot(&out);
             let rayleigh = p * beam.c * p * (3.0 / (8.0 * std::f64::consts::PI));
-            let hg = (1.0 - w.hg_g * w.hg_g)
-                / (4.0 * std::f64::consts::PI * (1.0 + w.hg_g * w.hg_g - 2.0 * w.hg_g * cos_g).powf(1.5));
+            let hg = (1.0 - w.hg_g * w.hg_g) / (4.0 * std::f64::consts::PI * (1.0 + w.hg_g * w.hg_g - 2.0 * w.hg_g * cos_g).powf(1.5));
             let particle = p * (0.5 * hg * beam.c.trace());
             total += (rayleigh * b_r + particle * b_p) * g;
             e_total += beam.c.trace();
@@ -282,11 +281,8 @@ pub fn counts<R: Rng>(
                 let eta = (c.extinction_ratio as f64 - 1.0) / (c.extinction_ratio as f64 + 1.0);
                 let th = 2.0 * c.polarizer_rad as f64;
                 let i = 0.5 * (s[0] + eta * (s[1] * th.cos() + s[2] * th.sin())) * scale * c.gain as f64;
-                let shot = if i > 0.0 {
-                    (i / err.electrons_per_count).sqrt() * Normal::new(0.0, 1.0).map_or(0.0, |d| d.sample(rng))
-                } else {
-                    0.0
-                };
+                let shot =
+                    if i > 0.0 { (i / err.electrons_per_count).sqrt() * Normal::new(0.0, 1.0).map_or(0.0, |d| d.sample(rng)) } else { 0.0 };
                 let x = c.offset_counts as f64 + i + shot + read.sample(rng);
                 *o = x.round().clamp(i16::MIN as f64, i16::MAX as f64) as i16;
             }

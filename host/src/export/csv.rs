@@ -77,7 +77,8 @@ pub fn write(session: &Session, dir: &Path) -> Result<Vec<(PathBuf, u64)>> {
         tables.entry(m.item.kind().to_string()).or_insert_with(Table::new).push(&message_json(&m.item, m.t_host_us));
     }
     for l in &session.logs {
-        let v = serde_json::json!({"host_t_us": l.t_host_us, "level": l.item.level, "timestamp": l.item.timestamp, "message": l.item.message});
+        let v =
+            serde_json::json!({"host_t_us": l.t_host_us, "level": l.item.level, "timestamp": l.item.timestamp, "message": l.item.message});
         tables.entry("log".into()).or_insert_with(Table::new).push(&v);
     }
     for c in &session.corrupt {

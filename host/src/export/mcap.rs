@@ -52,11 +52,24 @@ impl<W: Write + Seek> Out<W> {
         Ok(cid)
     }
 
-    fn write(&mut self, topic: &str, schema_name: &str, schema: &serde_json::Value, t_us: u64, publish_us: u64, msg: &serde_json::Value) -> Result<()> {
+    fn write(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: &serde_json::Value,
+        t_us: u64,
+        publish_us: u64,
+        msg: &serde_json::Value,
+    ) -> Result<()> {
         let cid = self.channel(topic, schema_name, schema)?;
         let seq = self.seq.entry(cid).or_insert(0);
         *seq += 1;
-        let header = mcap::records::MessageHeader { channel_id: cid, sequence: *seq, log_time: t_us.saturating_mul(1000), publish_time: publish_us.saturating_mul(1000) };
+        let header = mcap::records::MessageHeader {
+            channel_id: cid,
+            sequence: *seq,
+            log_time: t_us.saturating_mul(1000),
+            publish_time: publish_us.saturating_mul(1000),
+        };
         self.w.write_to_known_channel(&header, &serde_json::to_vec(msg)?).map_err(e)?;
         *self.summary.topics.entry(topic.to_string()).or_insert(0) += 1;
         self.summary.messages += 1;
@@ -126,7 +139,14 @@ pub fn write<W: Write + Seek>(session: &Session, out: W, time: TimeBase, mut pro
                 o.write("/subnav/log", "foxglove.Log", &log_schema, t, t_host, &msg)?;
             }
             Ev::Corrupt(c) => {
-                o.write("/subnav/link/corrupt", "subnav.CorruptFrame", &corrupt_schema, t, t_host, &json!({"host_t_us": t_host, "error": c}))?;
+                o.write(
+                    "/subnav/link/corrupt",
+                    "subnav.CorruptFrame",
+                    &corrupt_schema,
+                    t,
+                    t_host,
+                    &json!({"host_t_us": t_host, "error": c}),
+                )?;
             }
         }
     }

@@ -37,7 +37,16 @@ pub const KINDS: [&str; 9] = ["boot", "nav", "raw.imu", "raw.polarization", "raw
 pub fn for_kind(kind: &str) -> Option<(String, Value)> {
     let t = int();
     let s = match kind {
-        "boot" => obj("subnav.Boot", &[("t_us", t), ("protocol_version", int()), ("schema_fingerprint", int()), ("firmware_version", json!({"type": "array", "items": int()})), ("board", tagged(&["QemuMps2An386", "Stm32F405"]))]),
+        "boot" => obj(
+            "subnav.Boot",
+            &[
+                ("t_us", t),
+                ("protocol_version", int()),
+                ("schema_fingerprint", int()),
+                ("firmware_version", json!({"type": "array", "items": int()})),
+                ("board", tagged(&["QemuMps2An386", "Stm32F405"])),
+            ],
+        ),
         "nav" => obj(
             "subnav.NavSolution",
             &[
@@ -52,11 +61,22 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             ],
         ),
         "raw.imu" => obj("subnav.ImuSample", &[("t_us", t), ("gyro_radps", arr(3)), ("accel_mps2", arr(3)), ("temp_c", num())]),
-        "raw.polarization" => obj("subnav.PolarizationSample", &[("t_us", t), ("unit", int()), ("counts", json!({"type": "array", "items": int(), "minItems": 4, "maxItems": 4}))]),
+        "raw.polarization" => obj(
+            "subnav.PolarizationSample",
+            &[("t_us", t), ("unit", int()), ("counts", json!({"type": "array", "items": int(), "minItems": 4, "maxItems": 4}))],
+        ),
         "raw.depth" => obj("subnav.DepthSample", &[("t_us", t), ("pressure_pa", num()), ("temp_c", num()), ("depth_m", num())]),
         "compass" => obj(
             "subnav.CompassReport",
-            &[("t_us", t), ("heading_rad", num()), ("sigma_heading_rad", num()), ("sun_rel_azimuth_rad", num()), ("sun_elevation_rad", num()), ("no_fix_reason", int()), ("units_used", int())],
+            &[
+                ("t_us", t),
+                ("heading_rad", num()),
+                ("sigma_heading_rad", num()),
+                ("sun_rel_azimuth_rad", num()),
+                ("sun_elevation_rad", num()),
+                ("no_fix_reason", int()),
+                ("units_used", int()),
+            ],
         ),
         "health" => obj(
             "subnav.FilterHealth",
@@ -77,7 +97,22 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             &[
                 ("t_us", t),
                 ("source", tagged(&["Imu", "Depth", "Link", "Filter", "Scheduler", "Polarization"])),
-                ("kind", tagged(&["BusNack", "BusTimeout", "BusOther", "BadCrc", "IdentityMismatch", "Stuck", "Saturated", "NonFinite", "CorruptFrame", "Overrun", "TelemetryDropped"])),
+                (
+                    "kind",
+                    tagged(&[
+                        "BusNack",
+                        "BusTimeout",
+                        "BusOther",
+                        "BadCrc",
+                        "IdentityMismatch",
+                        "Stuck",
+                        "Saturated",
+                        "NonFinite",
+                        "CorruptFrame",
+                        "Overrun",
+                        "TelemetryDropped",
+                    ]),
+                ),
                 ("count", int()),
             ],
         ),

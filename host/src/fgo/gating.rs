@@ -6,8 +6,8 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::solver::Matrix15;
 use super::FgoError;
+use super::solver::Matrix15;
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GatingConfig {
@@ -192,7 +192,8 @@ mod tests {
         assert!(!ok.abnormal && ok.kappa == 1.0);
         let bad = gate(0.0, Sensor::Usbl, &DVector::from_vec(vec![20.0, 0.0, 0.0]), &h, &p, &rc, &cfg).unwrap();
         assert!(bad.abnormal && (bad.kappa - 400.0 / bad.threshold).abs() < 1e-9);
-        let off = gate(0.0, Sensor::Usbl, &DVector::from_vec(vec![20.0, 0.0, 0.0]), &h, &p, &rc, &GatingConfig { enabled: false, ..cfg }).unwrap();
+        let off = gate(0.0, Sensor::Usbl, &DVector::from_vec(vec![20.0, 0.0, 0.0]), &h, &p, &rc, &GatingConfig { enabled: false, ..cfg })
+            .unwrap();
         assert!(!off.abnormal && off.kappa == 1.0);
         assert!(gate(0.0, Sensor::Dvl, &DVector::from_vec(vec![f64::NAN, 0.0, 0.0]), &h, &p, &rc, &cfg).is_err());
         let not_pd = -DMatrix::identity(3, 3);

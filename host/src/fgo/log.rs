@@ -10,8 +10,8 @@ use std::io::{BufRead, Write};
 
 use serde::{Deserialize, Serialize};
 
-use super::preintegration::ImuParams;
 use super::FgoError;
+use super::preintegration::ImuParams;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ImuSample {
@@ -87,7 +87,11 @@ impl SensorLog {
     pub fn validate(&self) -> Result<(), FgoError> {
         self.config.imu.validate()?;
         let p = &self.config.prior;
-        if !finite(&p.rotvec_enu_flu) || !finite(&p.pos_enu_m) || !finite(&p.vel_enu_mps) || !p.sigmas.iter().all(|s| s.is_finite() && *s > 0.0) {
+        if !finite(&p.rotvec_enu_flu)
+            || !finite(&p.pos_enu_m)
+            || !finite(&p.vel_enu_mps)
+            || !p.sigmas.iter().all(|s| s.is_finite() && *s > 0.0)
+        {
             return Err(FgoError::Input("config.prior must be finite with sigmas > 0".into()));
         }
         if self.imu.len() < 2 {

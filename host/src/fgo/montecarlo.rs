@@ -5,11 +5,11 @@
 
 use serde::Serialize;
 
-use super::gating::{GatingConfig, Sensor};
-use super::sim::{simulate, SimConfig, SimStats};
-use super::smoother::{self, position_rmse, SmootherConfig};
-use super::ukf_baseline;
 use super::FgoError;
+use super::gating::{GatingConfig, Sensor};
+use super::sim::{SimConfig, SimStats, simulate};
+use super::smoother::{self, SmootherConfig, position_rmse};
+use super::ukf_baseline;
 
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct RunMetrics {
@@ -72,7 +72,14 @@ pub fn percentiles(mut v: Vec<f64>) -> Percentiles {
     }
     v.sort_by(|a, b| a.total_cmp(b));
     let q = |p: f64| v[((v.len() as f64 - 1.0) * p).round() as usize];
-    Percentiles { p50: q(0.5), p90: q(0.9), p99: q(0.99), p999: q(0.999), max: v[v.len() - 1], mean: v.iter().sum::<f64>() / v.len() as f64 }
+    Percentiles {
+        p50: q(0.5),
+        p90: q(0.9),
+        p99: q(0.99),
+        p999: q(0.999),
+        max: v[v.len() - 1],
+        mean: v.iter().sum::<f64>() / v.len() as f64,
+    }
 }
 
 /// One seeded run.

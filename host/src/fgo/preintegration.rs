@@ -10,9 +10,9 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
+use super::FgoError;
 use super::so3;
 use super::state::{ImuBias, NavState};
-use super::FgoError;
 
 pub type Vector9 = SVector<f64, 9>;
 pub type Matrix9 = SMatrix<f64, 9, 9>;
@@ -62,13 +62,7 @@ impl ImuParams {
         Matrix3::identity() * self.integration_sigma.powi(2)
     }
     pub fn validate(&self) -> Result<(), FgoError> {
-        let all = [
-            self.acc_noise_density,
-            self.gyro_noise_density,
-            self.integration_sigma,
-            self.acc_bias_rw,
-            self.gyro_bias_rw,
-        ];
+        let all = [self.acc_noise_density, self.gyro_noise_density, self.integration_sigma, self.acc_bias_rw, self.gyro_bias_rw];
         if !self.gravity_enu_mps2.iter().all(|g| g.is_finite()) || !all.iter().all(|x| x.is_finite() && *x > 0.0) {
             return Err(FgoError::Input(format!("IMU parameters must be finite and noise sigmas > 0: {self:?}")));
         }

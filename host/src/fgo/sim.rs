@@ -109,10 +109,7 @@ pub fn simulate(cfg: &SimConfig) -> Simulation {
     let heading0 = rng.random_range(0.0..std::f64::consts::TAU);
     let r0 = so3::exp(&Vector3::new(0.0, 0.0, heading0));
     let mut x = NavState::new(r0, Vector3::new(50.0, -30.0, -40.0), r0 * v_b);
-    let mut bias = ImuBias::new(
-        Vector3::from_fn(|_, _| std(0.01).sample(&mut rng)),
-        Vector3::from_fn(|_, _| std(2e-4).sample(&mut rng)),
-    );
+    let mut bias = ImuBias::new(Vector3::from_fn(|_, _| std(0.01).sample(&mut rng)), Vector3::from_fn(|_, _| std(2e-4).sample(&mut rng)));
     let start = NodeState::new(x, bias);
     let (leg, turn) = (60.0, 20.0);
     let mut truth = Truth { t_s: Vec::with_capacity(n), states: Vec::with_capacity(n), inputs: Vec::with_capacity(n), gravity: g };
@@ -217,13 +214,8 @@ pub fn simulate(cfg: &SimConfig) -> Simulation {
         bias_gyro_radps: [0.0; 3],
         sigmas: ps,
     };
-    let config = LogConfig {
-        imu,
-        dvl_rotvec_body: dvl_rot.into(),
-        dvl_lever_body_m: dvl_lever.into(),
-        usbl_lever_body_m: usbl_lever.into(),
-        prior,
-    };
+    let config =
+        LogConfig { imu, dvl_rotvec_body: dvl_rot.into(), dvl_lever_body_m: dvl_lever.into(), usbl_lever_body_m: usbl_lever.into(), prior };
     Simulation { log: SensorLog { config, imu: samples, dvl, usbl }, truth, stats }
 }
 

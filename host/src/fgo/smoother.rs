@@ -18,6 +18,7 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
+use super::FgoError;
 use super::factors::{BiasRandomWalkFactor, DvlFactor, Factor, ImuFactor, MarginalPrior, Noise, PriorFactor, UsblFactor};
 use super::gating::{self, GateLog, GatingConfig, Sensor};
 use super::log::{ImuSample, LogConfig, SensorLog};
@@ -25,7 +26,6 @@ use super::preintegration::Preintegrated;
 use super::so3;
 use super::solver::{self, LmOptions};
 use super::state::{ImuBias, NavState, NodeState};
-use super::FgoError;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SmootherConfig {
@@ -167,10 +167,7 @@ impl Smoother {
     fn imu_pair(&self, i: usize, j: usize, pim: Preintegrated) -> Result<[Factor; 2], FgoError> {
         let dt = pim.delta_t_s;
         let p = self.conf.imu;
-        Ok([
-            Factor::Imu(ImuFactor::new(i, j, pim)?),
-            Factor::BiasRw(BiasRandomWalkFactor::new(i, j, p.acc_bias_rw, p.gyro_bias_rw, dt)?),
-        ])
+        Ok([Factor::Imu(ImuFactor::new(i, j, pim)?), Factor::BiasRw(BiasRandomWalkFactor::new(i, j, p.acc_bias_rw, p.gyro_bias_rw, dt)?)])
     }
 
     /// Local index of the node at `t`, creating it if needed; `None` if `t` is before the window.
@@ -278,9 +275,7 @@ impl Smoother {
         let h00 = h.view((0, 0), (15, 15)).into_owned();
         let h01 = h.view((0, 15), (15, 15)).into_owned();
         let h11 = h.view((15, 15), (15, 15)).into_owned();
-        let chol0 = h00
-            .cholesky()
-            .ok_or_else(|| FgoError::Numeric("oldest node's information is not positive definite".into()))?;
+        let chol0 = h00.cholesky().ok_or_else(|| FgoError::Numeric("oldest node's information is not positive definite".into()))?;
         let hm = &h11 - h01.transpose() * chol0.solve(&h01);
         let gm = g.rows(15, 15) - h01.transpose() * chol0.solve(&g.rows(0, 15).into_owned());
         let hm = (&hm + hm.transpose()) * 0.5;
@@ -455,7 +450,15 @@ pub fn run(log: &SensorLog, cfg: SmootherConfig, batch: bool, mut progress: impl
             e.state = x;
         }
     }
-    Ok(RunResult { realtime: sm.realtime, batch: est, gate_log: sm.gate_log, latency_s: sm.latency_s, cpu_s: sm.cpu_s, batch_report: report, batch_factors: factors })
+    Ok(RunResult {
+        realtime: sm.realtime,
+        batch: est,
+        gate_log: sm.gate_log,
+        latency_s: sm.latency_s,
+        cpu_s: sm.cpu_s,
+        batch_report: report,
+        batch_factors: factors,
+    })
 }
 
 /// Position RMSE (m) of estimates against the simulator truth.
@@ -470,7 +473,7 @@ pub fn position_rmse(est: &[Estimate], truth: &super::sim::Truth) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fgo::sim::{simulate, SimConfig};
+    use crate::fgo::sim::{SimConfig, simulate};
 
     #[test]
     fn short_mission_gated_beats_ungated_and_counts_decisions() {

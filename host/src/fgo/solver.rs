@@ -6,12 +6,12 @@
 //! (block of the inverse information) for the gating test.
 
 use nalgebra::{DMatrix, DVector, SMatrix};
-use nalgebra_sparse::factorization::CscCholesky;
 use nalgebra_sparse::CscMatrix;
+use nalgebra_sparse::factorization::CscCholesky;
 
+use super::FgoError;
 use super::factors::Factor;
 use super::state::{NodeState, Tangent};
-use super::FgoError;
 
 pub type Matrix15 = SMatrix<f64, 15, 15>;
 
@@ -41,10 +41,7 @@ pub struct LmReport {
 }
 
 fn states_of<'a>(nodes: &'a [NodeState], f: &Factor) -> Result<Vec<&'a NodeState>, FgoError> {
-    f.nodes()
-        .into_iter()
-        .map(|i| nodes.get(i).ok_or_else(|| FgoError::Input(format!("factor refers to missing node {i}"))))
-        .collect()
+    f.nodes().into_iter().map(|i| nodes.get(i).ok_or_else(|| FgoError::Input(format!("factor refers to missing node {i}")))).collect()
 }
 
 /// `sum 0.5 |W r|^2`
@@ -213,11 +210,8 @@ pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -
             };
             let dx = -c.solve(&g);
             let dx = dx.column(0);
-            let candidate: Vec<NodeState> = nodes
-                .iter()
-                .enumerate()
-                .map(|(i, x)| x.retract(&Tangent::from_iterator(dx.rows(15 * i, 15).iter().copied())))
-                .collect();
+            let candidate: Vec<NodeState> =
+                nodes.iter().enumerate().map(|(i, x)| x.retract(&Tangent::from_iterator(dx.rows(15 * i, 15).iter().copied()))).collect();
             let new_cost = total_cost(&candidate, factors)?;
             if new_cost.is_finite() && new_cost <= cost {
                 let decrease = cost - new_cost;

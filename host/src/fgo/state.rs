@@ -78,10 +78,7 @@ impl NodeState {
                 pos_enu_m: self.nav.pos_enu_m + d.fixed_rows::<3>(3),
                 vel_enu_mps: self.nav.vel_enu_mps + d.fixed_rows::<3>(6),
             },
-            bias: ImuBias {
-                acc_mps2: self.bias.acc_mps2 + d.fixed_rows::<3>(9),
-                gyro_radps: self.bias.gyro_radps + d.fixed_rows::<3>(12),
-            },
+            bias: ImuBias { acc_mps2: self.bias.acc_mps2 + d.fixed_rows::<3>(9), gyro_radps: self.bias.gyro_radps + d.fixed_rows::<3>(12) },
         }
     }
 

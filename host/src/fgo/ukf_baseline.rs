@@ -9,13 +9,13 @@
 use std::collections::VecDeque;
 
 use nalgebra::{SMatrix, SVector, Vector3};
-use subnav_shared::ukf::{gate, MeasNoise, Space, Ukf, UkfConfig};
+use subnav_shared::ukf::{MeasNoise, Space, Ukf, UkfConfig, gate};
 
+use super::FgoError;
 use super::log::SensorLog;
 use super::smoother::Estimate;
 use super::so3;
 use super::state::{ImuBias, NavState, NodeState};
-use super::FgoError;
 
 type X = SVector<f64, 15>;
 
@@ -104,7 +104,12 @@ pub fn run(log: &SensorLog) -> Result<Vec<Estimate>, FgoError> {
     let mut t_now = pr.t_s;
     let mut k = 0usize; // current IMU sample index (held on [t_k, t_k+1))
     let imu = &log.imu;
-    let predict_to = |ukf: &mut Ukf<f64, 15, 31, NavSpace>, t_to: f64, t_now: &mut f64, k: &mut usize, history: &mut VecDeque<(f64, Vector3<f64>)>| -> Result<(), FgoError> {
+    let predict_to = |ukf: &mut Ukf<f64, 15, 31, NavSpace>,
+                      t_to: f64,
+                      t_now: &mut f64,
+                      k: &mut usize,
+                      history: &mut VecDeque<(f64, Vector3<f64>)>|
+     -> Result<(), FgoError> {
         while *t_now < t_to {
             while *k + 1 < imu.len() && imu[*k + 1].t_s <= *t_now {
                 *k += 1;
@@ -178,10 +183,19 @@ pub fn run(log: &SensorLog) -> Result<Vec<Estimate>, FgoError> {
                 m
             });
             n.r = r;
-            let rep = ukf.update::<3, subnav_shared::ukf::Euclidean, _>(&z, n, |x| Vector3::new(x[0], x[1], x[2]) + rot(x) * usbl_lever)
+            let rep = ukf
+                .update::<3, subnav_shared::ukf::Euclidean, _>(&z, n, |x| Vector3::new(x[0], x[1], x[2]) + rot(x) * usbl_lever)
                 .map_err(err)?;
             if std::env::var_os("FGO_UKF_DEBUG").is_some() {
-                eprintln!("usbl t {t:.1} nis {:.2} gate {:.2} acc {} Ppos {:.2} {:.2} Pvel {:.3}", rep.nis, rep.nis_gate, rep.accepted, ukf.p()[(0, 0)], ukf.p()[(1, 1)], ukf.p()[(3, 3)]);
+                eprintln!(
+                    "usbl t {t:.1} nis {:.2} gate {:.2} acc {} Ppos {:.2} {:.2} Pvel {:.3}",
+                    rep.nis,
+                    rep.nis_gate,
+                    rep.accepted,
+                    ukf.p()[(0, 0)],
+                    ukf.p()[(1, 1)],
+                    ukf.p()[(3, 3)]
+                );
             }
         }
         out.push(Estimate { id: out.len(), t_s: t, state: state_of(ukf.x()) });

@@ -16,8 +16,8 @@ use serde::Serialize;
 use subnav_shared::nav::{NavConfig, NavFilter15};
 use subnav_shared::ukf::wrap_pi;
 
-use super::sim::{generate, Dive, DiveConfig, Event};
-use super::{apply, start, EventCounts};
+use super::sim::{Dive, DiveConfig, Event, generate};
+use super::{EventCounts, apply, start};
 
 /// Divergence thresholds.
 pub const DIVERGED_HEADING_RAD: f64 = 10.0 * std::f64::consts::PI / 180.0;
@@ -61,11 +61,7 @@ pub fn evaluate(cfg: NavConfig, dive: &Dive) -> anyhow::Result<RunErrors> {
 
 fn score(nav: &NavFilter15, t: &super::sim::Truth, out: &mut RunErrors) {
     let n = nav.nominal();
-    let d = [
-        n.pos_ned_m.x as f64 - t.pos_ned_m[0],
-        n.pos_ned_m.y as f64 - t.pos_ned_m[1],
-        n.pos_ned_m.z as f64 - t.pos_ned_m[2],
-    ];
+    let d = [n.pos_ned_m.x as f64 - t.pos_ned_m[0], n.pos_ned_m.y as f64 - t.pos_ned_m[1], n.pos_ned_m.z as f64 - t.pos_ned_m[2]];
     let yaw_err = wrap_pi(n.yaw_rad() as f64 - t.yaw_rad);
     let horiz = (d[0] * d[0] + d[1] * d[1]).sqrt();
     let finite = d.iter().all(|v| v.is_finite()) && yaw_err.is_finite();
@@ -148,7 +144,14 @@ pub struct Comparison {
 }
 
 /// Run `runs` seeded dives (seeds `first_seed..first_seed+runs`) on `threads` threads.
-pub fn compare(dive_cfg: &DiveConfig, ukf_cfg: NavConfig, aukf_cfg: NavConfig, first_seed: u64, runs: u64, threads: usize) -> anyhow::Result<Comparison> {
+pub fn compare(
+    dive_cfg: &DiveConfig,
+    ukf_cfg: NavConfig,
+    aukf_cfg: NavConfig,
+    first_seed: u64,
+    runs: u64,
+    threads: usize,
+) -> anyhow::Result<Comparison> {
     let acc = Mutex::new((Acc::default(), Acc::default()));
     let next = Mutex::new(first_seed);
     let end = first_seed + runs;

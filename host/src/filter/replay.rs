@@ -14,13 +14,13 @@
 
 use std::fmt::Write as _;
 
-use anyhow::{bail, Context};
+use anyhow::{Context, bail};
 use serde::Serialize;
 use subnav_shared::nav::NavConfig;
 use subnav_shared::wire::messages::{ImuSample, NavMode};
 
 use super::sim::Event;
-use super::{apply, start, EventCounts};
+use super::{EventCounts, apply, start};
 
 /// Initial position and heading of a log.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -112,14 +112,31 @@ pub fn write_log(init: Option<LogInit>, events: &[Event]) -> String {
     let ts = |t: u64| t as f64 * 1e-6;
     if let Some(i) = init {
         let v = i.vel_ned_mps;
-        let _ = writeln!(s, "{},init,{},{},{},{},{},{},{}", ts(i.t_us), i.pos_ned_m[0], i.pos_ned_m[1], i.pos_ned_m[2], i.yaw_rad, v[0], v[1], v[2]);
+        let _ = writeln!(
+            s,
+            "{},init,{},{},{},{},{},{},{}",
+            ts(i.t_us),
+            i.pos_ned_m[0],
+            i.pos_ned_m[1],
+            i.pos_ned_m[2],
+            i.yaw_rad,
+            v[0],
+            v[1],
+            v[2]
+        );
     }
     for ev in events {
         let _ = match *ev {
             Event::Imu(m) => writeln!(
                 s,
                 "{},imu,{},{},{},{},{},{}",
-                ts(m.t_us), m.gyro_radps[0], m.gyro_radps[1], m.gyro_radps[2], m.accel_mps2[0], m.accel_mps2[1], m.accel_mps2[2]
+                ts(m.t_us),
+                m.gyro_radps[0],
+                m.gyro_radps[1],
+                m.gyro_radps[2],
+                m.accel_mps2[0],
+                m.accel_mps2[1],
+                m.accel_mps2[2]
             ),
             Event::Heading { t_us, heading_rad, sigma_rad } => writeln!(s, "{},heading,{}{}", ts(t_us), heading_rad, opt(sigma_rad)),
             Event::Depth { t_us, depth_m, sigma_m } => writeln!(s, "{},depth,{}{}", ts(t_us), depth_m, opt(sigma_m)),
@@ -202,7 +219,15 @@ pub fn rows_csv(rows: &[EstimateRow]) -> String {
     );
     for r in rows {
         let mut line = format!("{},{}", r.t_s, r.mode);
-        for v in r.pos_ned_m.iter().chain(&r.vel_ned_mps).chain(&r.roll_pitch_yaw_rad).chain(&r.sigma_pos_m).chain(&r.sigma_att_rad).chain(&r.nis) {
+        for v in r
+            .pos_ned_m
+            .iter()
+            .chain(&r.vel_ned_mps)
+            .chain(&r.roll_pitch_yaw_rad)
+            .chain(&r.sigma_pos_m)
+            .chain(&r.sigma_att_rad)
+            .chain(&r.nis)
+        {
             let _ = write!(line, ",{v}");
         }
         let _ = write!(line, ",{}", r.lambda);
@@ -218,14 +243,19 @@ pub fn rows_csv(rows: &[EstimateRow]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::filter::sim::{generate, DiveConfig};
+    use crate::filter::sim::{DiveConfig, generate};
 
     #[test]
     fn log_round_trips_and_replays() {
         let cfg = DiveConfig { duration_s: 20.0, ..DiveConfig::default() };
         let dive = generate(&cfg, 7);
         let t0 = dive.truth[0];
-        let init = LogInit { t_us: 0, pos_ned_m: [0.0, 0.0, 10.0], yaw_rad: dive.init_yaw_rad as f32, vel_ned_mps: t0.vel_ned_mps.map(|v| v as f32) };
+        let init = LogInit {
+            t_us: 0,
+            pos_ned_m: [0.0, 0.0, 10.0],
+            yaw_rad: dive.init_yaw_rad as f32,
+            vel_ned_mps: t0.vel_ned_mps.map(|v| v as f32),
+        };
         let text = write_log(Some(init), &dive.events);
         let (init2, events2) = parse_log(&text).unwrap();
         assert_eq!(init2, Some(init));

@@ -162,13 +162,12 @@ pub fn generate(cfg: &DiveConfig, seed: u64) -> Dive {
         }
         let f_b = [0.0, r * u, wdot - 9.81];
         let gyro = [bg[0] + g() * cfg.gyro_noise_radps, bg[1] + g() * cfg.gyro_noise_radps, r + bg[2] + g() * cfg.gyro_noise_radps];
-        let accel = [f_b[0] + ba[0] + g() * cfg.accel_noise_mps2, f_b[1] + ba[1] + g() * cfg.accel_noise_mps2, f_b[2] + ba[2] + g() * cfg.accel_noise_mps2];
-        events.push(Event::Imu(ImuSample {
-            t_us,
-            gyro_radps: gyro.map(|v| v as f32),
-            accel_mps2: accel.map(|v| v as f32),
-            temp_c: 10.0,
-        }));
+        let accel = [
+            f_b[0] + ba[0] + g() * cfg.accel_noise_mps2,
+            f_b[1] + ba[1] + g() * cfg.accel_noise_mps2,
+            f_b[2] + ba[2] + g() * cfg.accel_noise_mps2,
+        ];
+        events.push(Event::Imu(ImuSample { t_us, gyro_radps: gyro.map(|v| v as f32), accel_mps2: accel.map(|v| v as f32), temp_c: 10.0 }));
         if k > 0 && k % k_head == 0 {
             let s = cfg.heading_sigma_rad * mult(t, &[cfg.heading_burst]);
             let h = subnav_shared::ukf::wrap_pi(yaw + g() * s);

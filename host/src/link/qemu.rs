@@ -296,9 +296,7 @@ pub fn run_with_bus(
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
-    let child = cmd.spawn().with_context(|| {
-        format!("starting {} (install it: apt-get install qemu-system-arm)", cfg.qemu.display())
-    })?;
+    let child = cmd.spawn().with_context(|| format!("starting {} (install it: apt-get install qemu-system-arm)", cfg.qemu.display()))?;
     let mut child = KillOnDrop(child);
 
     // QEMU connects to us as soon as it has parsed its options.

@@ -31,7 +31,9 @@ impl Source {
     pub fn open(&self) -> Result<Box<dyn Read + Send>> {
         Ok(match self {
             Source::File(p) => Box::new(std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?),
-            Source::Tcp(addr) => Box::new(TcpStream::connect(addr).with_context(|| format!("connecting to {addr} (is the emulator or bridge listening?)"))?),
+            Source::Tcp(addr) => {
+                Box::new(TcpStream::connect(addr).with_context(|| format!("connecting to {addr} (is the emulator or bridge listening?)"))?)
+            }
             Source::Serial { path, baud } => Box::new(
                 serialport::new(path, *baud)
                     .timeout(Duration::from_millis(200))
@@ -54,7 +56,8 @@ pub fn pump(reader: &mut dyn Read, mut on_bytes: impl FnMut(&[u8]) -> bool) -> R
                     return Ok(());
                 }
             }
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted | std::io::ErrorKind::WouldBlock) => {}
+            Err(e)
+                if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted | std::io::ErrorKind::WouldBlock) => {}
             Err(e) => return Err(e).context("reading telemetry"),
         }
     }

@@ -123,4 +123,3 @@ pub fn now_unix_us() -> u64 {
 pub fn is_recording(bytes: &[u8]) -> bool {
     bytes.starts_with(&MAGIC)
 }
-

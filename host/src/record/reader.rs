@@ -7,7 +7,7 @@ use anyhow::Context;
 use serde::Serialize;
 use subnav_shared::wire::frame::FRAME_CRC;
 
-use super::{CHUNK_OVERHEAD, Chunk, MAGIC, MAX_CHUNK, MAX_META, Meta, Stream, SYNC, VERSION};
+use super::{CHUNK_OVERHEAD, Chunk, MAGIC, MAX_CHUNK, MAX_META, Meta, SYNC, Stream, VERSION};
 
 /// Why a recording cannot be read at all (its header is unusable).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -27,8 +27,12 @@ pub enum RecordError {
 impl std::fmt::Display for RecordError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            RecordError::NotARecording => write!(f, "not a subnav recording (no magic); raw uplink byte files are read by `subnav decode --file`"),
-            RecordError::UnsupportedVersion(v) => write!(f, "recording format version {v} is newer than this host reads ({VERSION}); update subnav"),
+            RecordError::NotARecording => {
+                write!(f, "not a subnav recording (no magic); raw uplink byte files are read by `subnav decode --file`")
+            }
+            RecordError::UnsupportedVersion(v) => {
+                write!(f, "recording format version {v} is newer than this host reads ({VERSION}); update subnav")
+            }
             RecordError::TruncatedHeader => write!(f, "the recording header is truncated (the file was cut before any data)"),
             RecordError::HeaderCrc => write!(f, "the recording header is damaged (CRC mismatch)"),
             RecordError::BadMeta(e) => write!(f, "the recording header metadata is not valid JSON: {e}"),
@@ -94,7 +98,11 @@ impl<'a> Reader<'a> {
     /// Parse the header.
     pub fn new(bytes: &'a [u8]) -> Result<Self, RecordError> {
         if bytes.len() < MAGIC.len() {
-            return Err(if MAGIC.starts_with(bytes) && !bytes.is_empty() { RecordError::TruncatedHeader } else { RecordError::NotARecording });
+            return Err(if MAGIC.starts_with(bytes) && !bytes.is_empty() {
+                RecordError::TruncatedHeader
+            } else {
+                RecordError::NotARecording
+            });
         }
         if !bytes.starts_with(&MAGIC) {
             return Err(RecordError::NotARecording);
@@ -180,7 +188,8 @@ impl Iterator for Reader<'_> {
             Attempt::Bad(r) => r,
         };
         let next = self.resync(at + 1);
-        let reason = if next >= self.bytes.len() && reason == "truncated chunk" { "truncated final chunk (recording cut short)" } else { reason };
+        let reason =
+            if next >= self.bytes.len() && reason == "truncated chunk" { "truncated final chunk (recording cut short)" } else { reason };
         self.pos = next;
         self.stats.damaged_regions += 1;
         self.stats.damaged_bytes += (next - at) as u64;

@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use subnav_shared::wire::frame::FRAME_CRC;
 
-use super::{MAGIC, MAX_CHUNK, Meta, Stream, SYNC, VERSION};
+use super::{MAGIC, MAX_CHUNK, Meta, SYNC, Stream, VERSION};
 
 /// Writes chunks to any `Write` (a `File` for recordings: each chunk reaches the OS at once).
 pub struct Writer<W: Write> {
@@ -20,7 +20,8 @@ pub struct Writer<W: Write> {
 impl Writer<std::fs::File> {
     /// Create (or truncate) a recording file.
     pub fn create(path: &Path, meta: &Meta) -> Result<Self> {
-        let f = std::fs::File::create(path).with_context(|| format!("creating the recording {} (check the directory exists and is writable)", path.display()))?;
+        let f = std::fs::File::create(path)
+            .with_context(|| format!("creating the recording {} (check the directory exists and is writable)", path.display()))?;
         Writer::new(f, meta)
     }
 }

@@ -54,7 +54,8 @@ pub fn write_recording(path: &Path, opt: &DiveOptions) -> Result<DiveSummary> {
     let nav_cfg = if opt.adaptive { NavConfig::default().adaptive() } else { NavConfig::default() };
     let mut nav = start(nav_cfg, t0.t_us, t0.pos_ned_m.map(|v| v as f32), t0.vel_ned_mps.map(|v| v as f32), dive.init_yaw_rad as f32)?;
 
-    let mut meta = Meta::new(format!("simulated dive seed {} ({} s, {})", opt.seed, opt.duration_s, if opt.adaptive { "AUKF" } else { "UKF" }));
+    let mut meta =
+        Meta::new(format!("simulated dive seed {} ({} s, {})", opt.seed, opt.duration_s, if opt.adaptive { "AUKF" } else { "UKF" }));
     // Host time: a fixed epoch plus sensor time, so the recording is reproducible.
     meta.start_unix_us = 1_700_000_000_000_000;
     let host = |t_us: u64| meta.start_unix_us + t_us;

@@ -123,7 +123,8 @@ pub fn truth_at(truth: &[TruthRow], t_s: f64) -> Option<([f64; 3], f64)> {
 impl ReportData {
     /// Collect what the report shows. `truth` overrides the recording's truth stream when given.
     pub fn from_session(s: &Session, truth: Option<Vec<TruthRow>>) -> Self {
-        let mut d = ReportData { corrupt_frames: s.link.frames_bad, frames_ok: s.link.frames_ok, log_lines: s.logs.len(), ..Default::default() };
+        let mut d =
+            ReportData { corrupt_frames: s.link.frames_bad, frames_ok: s.link.frames_ok, log_lines: s.logs.len(), ..Default::default() };
         let mut truth = truth.unwrap_or_else(|| s.truth.clone());
         truth.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
         d.truth = truth;
@@ -263,8 +264,17 @@ pub fn write(d: &ReportData, dir: &Path, images: ImageFormat, title: &str, mut p
         }
     }
     let mut md = format!("# {title}\n\n");
-    let _ = writeln!(md, "{} navigation solutions ({} before initialisation not shown), {} health, {} fault messages, {} log lines; {} frames decoded, {} corrupt.\n",
-        d.nav.len(), d.nav_uninitialised, d.health.len(), d.faults.len(), d.log_lines, d.frames_ok, d.corrupt_frames);
+    let _ = writeln!(
+        md,
+        "{} navigation solutions ({} before initialisation not shown), {} health, {} fault messages, {} log lines; {} frames decoded, {} corrupt.\n",
+        d.nav.len(),
+        d.nav_uninitialised,
+        d.health.len(),
+        d.faults.len(),
+        d.log_lines,
+        d.frames_ok,
+        d.corrupt_frames
+    );
     match &d.stats {
         Some(s) => {
             let _ = writeln!(md, "## Errors against truth ({} solutions scored)\n", s.scored);
@@ -275,10 +285,18 @@ pub fn write(d: &ReportData, dir: &Path, images: ImageFormat, title: &str, mut p
             let _ = writeln!(md, "| depth RMSE | {:.3} m |", s.depth_rmse_m);
             let _ = writeln!(md, "| heading RMSE | {:.3} deg |", s.heading_rmse_deg);
             let _ = writeln!(md, "| heading max | {:.3} deg |", s.heading_max_deg);
-            let _ = writeln!(md, "| within 3 sigma (N / E / D / yaw) | {:.1} / {:.1} / {:.1} / {:.1} % |\n",
-                100.0 * s.within_3sigma[0], 100.0 * s.within_3sigma[1], 100.0 * s.within_3sigma[2], 100.0 * s.within_3sigma[3]);
+            let _ = writeln!(
+                md,
+                "| within 3 sigma (N / E / D / yaw) | {:.1} / {:.1} / {:.1} / {:.1} % |\n",
+                100.0 * s.within_3sigma[0],
+                100.0 * s.within_3sigma[1],
+                100.0 * s.within_3sigma[2],
+                100.0 * s.within_3sigma[3]
+            );
         }
-        None => md.push_str("No truth: error statistics need a simulated dive's truth (`--truth`, or a truth stream in the recording).\n\n"),
+        None => {
+            md.push_str("No truth: error statistics need a simulated dive's truth (`--truth`, or a truth stream in the recording).\n\n")
+        }
     }
     for (name, file, caption) in &sections {
         let _ = writeln!(md, "## {name}\n\n{caption}\n\n![{name}]({file})\n");
@@ -297,7 +315,9 @@ fn esc(s: &str) -> String {
 /// The Markdown page as HTML (only the constructs `write` produces: headings, tables, images,
 /// paragraphs).
 fn to_html(md: &str) -> String {
-    let mut h = String::from("<!doctype html><html><head><meta charset=\"utf-8\"><title>subnav report</title><style>body{font-family:sans-serif;max-width:1000px;margin:auto}img{max-width:100%}table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px}</style></head><body>\n");
+    let mut h = String::from(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>subnav report</title><style>body{font-family:sans-serif;max-width:1000px;margin:auto}img{max-width:100%}table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px}</style></head><body>\n",
+    );
     let mut in_table = false;
     for line in md.lines() {
         if line.starts_with('|') {

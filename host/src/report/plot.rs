@@ -28,11 +28,19 @@ fn font_ok() -> bool {
     *OK.get_or_init(|| {
         let mut paths: Vec<String> = std::env::var("SUBNAV_FONT").into_iter().collect();
         paths.extend(
-            ["/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf", "/usr/share/fonts/TTF/DejaVuSans.ttf", "/usr/share/fonts/dejavu/DejaVuSans.ttf", "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf", "/Library/Fonts/Arial.ttf"]
-                .map(String::from),
+            [
+                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+                "/usr/share/fonts/TTF/DejaVuSans.ttf",
+                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+                "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+                "/Library/Fonts/Arial.ttf",
+            ]
+            .map(String::from),
         );
         paths.into_iter().any(|p| {
-            std::fs::read(&p).is_ok_and(|bytes| plotters::style::register_font("sans-serif", FontStyle::Normal, Box::leak(bytes.into_boxed_slice())).is_ok())
+            std::fs::read(&p).is_ok_and(|bytes| {
+                plotters::style::register_font("sans-serif", FontStyle::Normal, Box::leak(bytes.into_boxed_slice())).is_ok()
+            })
         })
     })
 }
@@ -98,7 +106,9 @@ fn series_chart<DB: DrawingBackend>(
         let mut c = b.build_cartesian_2d(x, (lo * 0.5..hi * 2.0).log_scale()).map_err(err)?;
         c.configure_mesh().x_desc("t (s)").y_desc(y_label).y_label_formatter(&|v: &f64| format!("{v:.0e}")).draw().map_err(err)?;
         for (name, col, pts) in series {
-            let s = c.draw_series(LineSeries::new(pts.iter().copied().filter(|p| p.1 > 0.0 && p.1.is_finite()), col.stroke_width(2))).map_err(err)?;
+            let s = c
+                .draw_series(LineSeries::new(pts.iter().copied().filter(|p| p.1 > 0.0 && p.1.is_finite()), col.stroke_width(2)))
+                .map_err(err)?;
             if text {
                 let col = *col;
                 s.label(*name).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2)));
@@ -127,7 +137,8 @@ fn series_chart<DB: DrawingBackend>(
 
 const EST: RGBColor = RGBColor(31, 119, 180);
 const BOUND: RGBColor = RGBColor(214, 39, 40);
-const COLS: [RGBColor; 5] = [RGBColor(31, 119, 180), RGBColor(255, 127, 14), RGBColor(44, 160, 44), RGBColor(148, 103, 189), RGBColor(140, 86, 75)];
+const COLS: [RGBColor; 5] =
+    [RGBColor(31, 119, 180), RGBColor(255, 127, 14), RGBColor(44, 160, 44), RGBColor(148, 103, 189), RGBColor(140, 86, 75)];
 
 fn trajectory(d: &ReportData, path: &Path) -> Result<bool> {
     if d.nav.is_empty() {
@@ -149,7 +160,9 @@ fn trajectory(d: &ReportData, path: &Path) -> Result<bool> {
         let mut c = b.build_cartesian_2d(cx - half..cx + half, cy - half..cy + half).map_err(err)?;
         c.configure_mesh().x_desc("east (m)").y_desc("north (m)").draw().map_err(err)?;
         if !d.truth.is_empty() {
-            let s = c.draw_series(LineSeries::new(d.truth.iter().map(|t| (t.pos_ned_m[1], t.pos_ned_m[0])), BLACK.stroke_width(2))).map_err(err)?;
+            let s = c
+                .draw_series(LineSeries::new(d.truth.iter().map(|t| (t.pos_ned_m[1], t.pos_ned_m[0])), BLACK.stroke_width(2)))
+                .map_err(err)?;
             if text {
                 s.label("truth").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
             }
@@ -159,10 +172,19 @@ fn trajectory(d: &ReportData, path: &Path) -> Result<bool> {
             s.label("estimate").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], EST.stroke_width(2)));
         }
         if let (Some(a), Some(z)) = (d.nav.first(), d.nav.last()) {
-            c.draw_series([Circle::new((a.pos_ned_m[1], a.pos_ned_m[0]), 6, GREEN.filled()), Circle::new((z.pos_ned_m[1], z.pos_ned_m[0]), 6, BOUND.filled())]).map_err(err)?;
+            c.draw_series([
+                Circle::new((a.pos_ned_m[1], a.pos_ned_m[0]), 6, GREEN.filled()),
+                Circle::new((z.pos_ned_m[1], z.pos_ned_m[0]), 6, BOUND.filled()),
+            ])
+            .map_err(err)?;
         }
         if text {
-            c.configure_series_labels().position(SeriesLabelPosition::UpperRight).background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(err)?;
+            c.configure_series_labels()
+                .position(SeriesLabelPosition::UpperRight)
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(err)?;
         }
         Ok(())
     })

@@ -209,7 +209,8 @@ impl SimHead {
             PressureInput { pressure_pa: 101_325.0 + 1025.0 * 9.80665 * z + normal(sigma).sample(&mut rng), temp_c: 12.0 }
         });
         if sc.faults.depth_nack_probability > 0.0 {
-            depth.faults = crate::chips::BusFaults::seeded(sc.seed ^ 0x5555).with_nack_probability(sc.faults.depth_nack_probability, sc.seed ^ 0x5555);
+            depth.faults =
+                crate::chips::BusFaults::seeded(sc.seed ^ 0x5555).with_nack_probability(sc.faults.depth_nack_probability, sc.seed ^ 0x5555);
         }
         chips.attach_i2c(0, depth);
         SimHead { chips }

@@ -280,8 +280,7 @@ pub fn measure_sun(
     }
     let rel_az = libm::atan2f(sy, sx);
     let water_zenith = core::f32::consts::FRAC_PI_2 - water_el;
-    let air_zenith =
-        water::air_zenith_rad(water_zenith, cfg.n_water, cfg.snell_tolerance_rad).ok_or(NoFix::OutsideSnellWindow)?;
+    let air_zenith = water::air_zenith_rad(water_zenith, cfg.n_water, cfg.snell_tolerance_rad).ok_or(NoFix::OutsideSnellWindow)?;
     let cos_el = crate::ephemeris::phase::sincos_rad(water_el).1.max(1e-3);
     let tan_el = libm::sqrtf((1.0 - cos_el * cos_el).max(0.0)) / cos_el;
     let sigma_az_sensor = libm::sqrtf(sun.cov_tangent[(0, 0)]) / cos_el;

@@ -170,9 +170,7 @@ pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f3
     if s.dot(up_body) < 0.0 {
         s = -s;
     }
-    let sigma_r = |o: &UnitObservation, s: &Vector3<f32>| {
-        sigma_aop(o) * o.view_body.cross(&o.e_body).dot(s).abs().max(cfg.lever_floor)
-    };
+    let sigma_r = |o: &UnitObservation, s: &Vector3<f32>| sigma_aop(o) * o.view_body.cross(&o.e_body).dot(s).abs().max(cfg.lever_floor);
     let mut e = [Vector3::zeros(); super::MAX_UNITS];
     let mut r = [0.0f32; super::MAX_UNITS];
     let correct = |e: &mut [Vector3<f32>; super::MAX_UNITS], s: &Vector3<f32>| {

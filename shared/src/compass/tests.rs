@@ -67,7 +67,16 @@ fn scene(units: &[UnitModel], roll: f32, pitch: f32, yaw: f32, s0: f32, dolp_sca
 }
 
 #[allow(clippy::too_many_arguments)]
-fn scene_for(units: &[UnitModel], s_ned: Vector3<f32>, roll: f32, pitch: f32, yaw: f32, s0: f32, dolp_scale: f32, bad: Option<usize>) -> Scene {
+fn scene_for(
+    units: &[UnitModel],
+    s_ned: Vector3<f32>,
+    roll: f32,
+    pitch: f32,
+    yaw: f32,
+    s0: f32,
+    dolp_scale: f32,
+    bad: Option<usize>,
+) -> Scene {
     let r_nb = Rotation3::from_euler_angles(roll, pitch, yaw);
     let s_body = r_nb.inverse() * s_ned;
     let f = r_nb.inverse() * Vector3::new(0.0, 0.0, -G0_MPS2);
@@ -75,7 +84,8 @@ fn scene_for(units: &[UnitModel], s_ned: Vector3<f32>, roll: f32, pitch: f32, ya
 }
 
 fn run(units: &[UnitModel], sc: &Scene) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
-    let input = CompassInput { counts: &sc.counts, accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
+    let input =
+        CompassInput { counts: &sc.counts, accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
     solve(units, &input, &cfg())
 }
 
@@ -140,7 +150,8 @@ fn no_fix_dark_saturated_low_dolp() {
 fn no_fix_too_few_units_and_bad_input() {
     let u = units();
     let sc = scene(&u, 0.0, 0.0, 1.0, 1.0, 1.0, None);
-    let input = CompassInput { counts: &sc.counts[..2], accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
+    let input =
+        CompassInput { counts: &sc.counts[..2], accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
     assert_eq!(no_fix(solve(&u[..2], &input, &cfg())), NoFix::TooFewUnits);
     assert_eq!(no_fix(solve(&u[..3], &input, &cfg())), NoFix::BadInput);
     assert_eq!(sun_vector::solve(&[], &Vector3::z(), None, &SolverConfig::default()), Err(NoFix::TooFewUnits));
@@ -188,7 +199,8 @@ fn no_fix_time_night_tilt() {
     let vertical = CompassInput { accel_body_mps2: [-9.8, 0.0, 0.0], ..input };
     assert_eq!(no_fix(solve(&u, &vertical, &cfg())), NoFix::TiltInvalid);
     // Wrong place: measured elevation disagrees with the ephemeris.
-    let wrong = CompassInput { observer: Some(Observer { lat_rad: -30.0 * DEG, ..place() }), unix_us: Some(T_US - 5 * 3_600_000_000), ..input };
+    let wrong =
+        CompassInput { observer: Some(Observer { lat_rad: -30.0 * DEG, ..place() }), unix_us: Some(T_US - 5 * 3_600_000_000), ..input };
     let r = solve(&u, &wrong, &cfg());
     assert!(matches!(no_fix(r), NoFix::Inconsistent | NoFix::SunBelowHorizon));
 }

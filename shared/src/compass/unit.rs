@@ -101,12 +101,7 @@ fn unit3(v: [f32; 3]) -> Vector3<f32> {
 
 impl UnitModel {
     /// Builds a unit model, checking the geometry and precomputing the Stokes inverse.
-    pub fn new(
-        view_body: [f32; 3],
-        axis0_body: [f32; 3],
-        channels: [ChannelCal; CHANNELS],
-        noise: NoiseModel,
-    ) -> Result<Self, ModelError> {
+    pub fn new(view_body: [f32; 3], axis0_body: [f32; 3], channels: [ChannelCal; CHANNELS], noise: NoiseModel) -> Result<Self, ModelError> {
         let d = unit3(view_body);
         let a = unit3(axis0_body);
         let ok = |x: f32| x.is_finite();
@@ -140,7 +135,14 @@ impl UnitModel {
     }
 
     /// A unit with nominal 0/45/90/135 deg polarizers and identical channels.
-    pub fn nominal(view_body: [f32; 3], axis0_body: [f32; 3], gain: f32, offset_counts: f32, extinction_ratio: f32, noise: NoiseModel) -> Result<Self, ModelError> {
+    pub fn nominal(
+        view_body: [f32; 3],
+        axis0_body: [f32; 3],
+        gain: f32,
+        offset_counts: f32,
+        extinction_ratio: f32,
+        noise: NoiseModel,
+    ) -> Result<Self, ModelError> {
         let q = core::f32::consts::FRAC_PI_4;
         let ch = |k: usize| ChannelCal { gain, offset_counts, polarizer_rad: q * k as f32, extinction_ratio };
         Self::new(view_body, axis0_body, [ch(0), ch(1), ch(2), ch(3)], noise)

@@ -118,9 +118,11 @@ const GMST_B: u64 = turns_q64(280.460_618_37 / 360.0);
 const GMST_RATE: Rate = Rate::from_turns_per_day(360.985_647_366_29 / 360.0);
 const HALF_TURN: u64 = 1 << 63;
 /// Secular polynomials as f32 (compile time); L's orders 0 and 1 are the mean-longitude phase.
-const L_POLY_REST: [f32; 6] = [0.0, 0.0, terms::L_POLY[2] as f32, terms::L_POLY[3] as f32, terms::L_POLY[4] as f32, terms::L_POLY[5] as f32];
+const L_POLY_REST: [f32; 6] =
+    [0.0, 0.0, terms::L_POLY[2] as f32, terms::L_POLY[3] as f32, terms::L_POLY[4] as f32, terms::L_POLY[5] as f32];
 const B_POLY_F32: [f32; 2] = [terms::B_POLY[0] as f32, terms::B_POLY[1] as f32];
-const R_POLY_F32: [f32; 5] = [terms::R_POLY[0] as f32, terms::R_POLY[1] as f32, terms::R_POLY[2] as f32, terms::R_POLY[3] as f32, terms::R_POLY[4] as f32];
+const R_POLY_F32: [f32; 5] =
+    [terms::R_POLY[0] as f32, terms::R_POLY[1] as f32, terms::R_POLY[2] as f32, terms::R_POLY[3] as f32, terms::R_POLY[4] as f32];
 
 /// Sums `amp * cos(phase)` per power of tau, then combines with the powers of tau.
 fn vsop_sum<const N: usize>(terms: &[terms::VsopTerm; N], poly: &[f32], t: SplitTime, tau: f32) -> f32 {
@@ -146,12 +148,7 @@ fn vsop_sum<const N: usize>(terms: &[terms::VsopTerm; N], poly: &[f32], t: Split
 
 /// Sun position for a POSIX time (µs), an observer, an optional atmosphere (refraction) and
 /// TT - UT1 (s).
-pub fn sun_position(
-    unix_us: i64,
-    obs: &Observer,
-    atmosphere: Option<&Atmosphere>,
-    delta_t_s: f32,
-) -> Result<SunPosition, EphemerisError> {
+pub fn sun_position(unix_us: i64, obs: &Observer, atmosphere: Option<&Atmosphere>, delta_t_s: f32) -> Result<SunPosition, EphemerisError> {
     if !(obs.lat_rad.is_finite() && obs.lon_rad.is_finite() && obs.height_m.is_finite() && delta_t_s.is_finite()) {
         return Err(EphemerisError::NonFinite);
     }
@@ -202,9 +199,7 @@ pub fn sun_position(
 
     // Apparent geocentric longitude: theta = L + 180 deg, plus nutation and aberration.
     let aberration_rad = -20.4898 * ARCSEC / r_au;
-    let lambda = from_rad(l_small_rad + dpsi_rad + aberration_rad)
-        .wrapping_add(l_mean)
-        .wrapping_add(HALF_TURN);
+    let lambda = from_rad(l_small_rad + dpsi_rad + aberration_rad).wrapping_add(l_mean).wrapping_add(HALF_TURN);
     let beta_rad = -b_rad;
 
     // Geocentric right ascension and declination via the equatorial unit vector.
@@ -220,8 +215,7 @@ pub fn sun_position(
     let (sin_dec, cos_dec) = (z / norm, rho / norm);
 
     // Apparent sidereal time and local hour angle (SPA 3.8, 3.9).
-    let nu = phase(GMST_B, GMST_RATE, ut)
-        .wrapping_add(from_rad(0.000_387_933 * DEG * jc * jc + dpsi_rad * ce));
+    let nu = phase(GMST_B, GMST_RATE, ut).wrapping_add(from_rad(0.000_387_933 * DEG * jc * jc + dpsi_rad * ce));
     let h = nu.wrapping_add(from_rad(obs.lon_rad)).wrapping_sub(from_rad(ra_rad));
 
     // Topocentric parallax (SPA 3.10-3.12).
@@ -277,11 +271,7 @@ pub fn sun_position(
         right_ascension_rad: if ra_rad < 0.0 { ra_rad + core::f32::consts::TAU } else { ra_rad },
         distance_au: r_au,
     };
-    if result.apparent_zenith_rad.is_finite() && result.azimuth_rad.is_finite() {
-        Ok(result)
-    } else {
-        Err(EphemerisError::NonFinite)
-    }
+    if result.apparent_zenith_rad.is_finite() && result.azimuth_rad.is_finite() { Ok(result) } else { Err(EphemerisError::NonFinite) }
 }
 
 #[cfg(test)]

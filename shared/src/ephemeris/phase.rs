@@ -66,8 +66,7 @@ impl SplitTime {
 /// `b + rate * t` in turns (Q0.64, wrapping).
 #[inline]
 pub fn phase(b: u64, rate: Rate, t: SplitTime) -> u64 {
-    b.wrapping_add(rate.per_day.wrapping_mul(t.days as u64))
-        .wrapping_add(rate.per_us.wrapping_mul(t.us_of_day))
+    b.wrapping_add(rate.per_day.wrapping_mul(t.days as u64)).wrapping_add(rate.per_us.wrapping_mul(t.us_of_day))
 }
 
 /// Phase (Q0.64 turns) to radians in [-pi, pi).

@@ -136,19 +136,12 @@ pub(super) const L_TERMS: [VsopTerm; 54] = [
 /// B: secular polynomial coefficients in tau^k (1e-8 rad), k = 0..1.
 pub(super) const B_POLY: [f64; 2] = [0.0, 0.0];
 /// B: periodic terms (k, A [1e-8 rad], B [rad], C [rad/millennium]): A tau^k cos(B + C tau).
-pub(super) const B_TERMS: [VsopTerm; 3] = [
-    vsop(0, 280.0, 3.199, 84334.662),
-    vsop(0, 102.0, 5.422, 5507.553),
-    vsop(0, 80.0, 3.88, 5223.69),
-];
+pub(super) const B_TERMS: [VsopTerm; 3] = [vsop(0, 280.0, 3.199, 84334.662), vsop(0, 102.0, 5.422, 5507.553), vsop(0, 80.0, 3.88, 5223.69)];
 /// R: secular polynomial coefficients in tau^k (1e-8 au), k = 0..4.
 pub(super) const R_POLY: [f64; 5] = [100013989.0, 0.0, 0.0, 0.0, 0.0];
 /// R: periodic terms (k, A [1e-8 au], B [rad], C [rad/millennium]): A tau^k cos(B + C tau).
-pub(super) const R_TERMS: [VsopTerm; 3] = [
-    vsop(0, 1670700.0, 3.0984635, 6283.07585),
-    vsop(0, 13956.0, 3.05525, 12566.1517),
-    vsop(1, 103019.0, 1.10749, 6283.07585),
-];
+pub(super) const R_TERMS: [VsopTerm; 3] =
+    [vsop(0, 1670700.0, 3.0984635, 6283.07585), vsop(0, 13956.0, 3.05525, 12566.1517), vsop(1, 103019.0, 1.10749, 6283.07585)];
 /// Nutation terms (Y0..Y4 multipliers of D, M, M', F, Omega; a, b [1e-4 arcsec]; c, d [1e-4 arcsec]).
 pub(super) const NUTATION_TERMS: [NutationTerm; 9] = [
     nutation([0, 0, 0, 0, 1], -171996.0, -174.2, 92025.0, 8.9),

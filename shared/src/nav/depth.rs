@@ -6,7 +6,7 @@ use nalgebra::{SVector, Vector1};
 
 use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{NavError, NavFilter, KIND_DEPTH};
+use super::filter::{KIND_DEPTH, NavError, NavFilter};
 use super::state::{NominalState, POS};
 
 /// Predicted depth of an error sigma point.

@@ -3,11 +3,11 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
-use crate::ukf::{AdaptConfig, MeasNoise, Ukf, UkfConfig, UkfError, UpdateReport};
 use crate::ukf::gate::chi2_999;
+use crate::ukf::{AdaptConfig, MeasNoise, Ukf, UkfConfig, UkfError, UpdateReport};
 use crate::wire::messages::{ImuSample, NavMode, NavSolution};
 
-use super::state::{set_seg, yaw_of, NominalState, ATT, BA, BG, MARKOV, POS, VEL};
+use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, set_seg, yaw_of};
 use super::strapdown::{self, Increments};
 
 /// Update kinds, in the order of `FilterHealth::nis` / `r_diag`.
@@ -124,10 +124,42 @@ impl Default for NavConfig {
             init_sigma_pos_m: 1.0,
             init_sigma_gyro_bias: 0.002,
             init_sigma_accel_bias: 0.05,
-            heading: SensorConfig { sigma: 0.01, sigma_floor: 0.003, gate: chi2_999(1), gate_state_max: 16.0, gate_release_after: 10, adapt: true, fading_mask: bits(&[0, 1, 2, 9, 10, 11]) },
-            depth: SensorConfig { sigma: 0.05, sigma_floor: 0.01, gate: chi2_999(1), gate_state_max: 16.0, gate_release_after: 10, adapt: true, fading_mask: bits(&[5, 8]) },
-            velocity: SensorConfig { sigma: 0.02, sigma_floor: 0.005, gate: chi2_999(3), gate_state_max: 16.0, gate_release_after: 10, adapt: true, fading_mask: bits(&[0, 1, 2, 3, 4, 5]) },
-            position: SensorConfig { sigma: 1.0, sigma_floor: 0.01, gate: chi2_999(3), gate_state_max: 16.0, gate_release_after: 3, adapt: false, fading_mask: bits(&[3, 4, 5, 6, 7, 8]) },
+            heading: SensorConfig {
+                sigma: 0.01,
+                sigma_floor: 0.003,
+                gate: chi2_999(1),
+                gate_state_max: 16.0,
+                gate_release_after: 10,
+                adapt: true,
+                fading_mask: bits(&[0, 1, 2, 9, 10, 11]),
+            },
+            depth: SensorConfig {
+                sigma: 0.05,
+                sigma_floor: 0.01,
+                gate: chi2_999(1),
+                gate_state_max: 16.0,
+                gate_release_after: 10,
+                adapt: true,
+                fading_mask: bits(&[5, 8]),
+            },
+            velocity: SensorConfig {
+                sigma: 0.02,
+                sigma_floor: 0.005,
+                gate: chi2_999(3),
+                gate_state_max: 16.0,
+                gate_release_after: 10,
+                adapt: true,
+                fading_mask: bits(&[0, 1, 2, 3, 4, 5]),
+            },
+            position: SensorConfig {
+                sigma: 1.0,
+                sigma_floor: 0.01,
+                gate: chi2_999(3),
+                gate_state_max: 16.0,
+                gate_release_after: 3,
+                adapt: false,
+                fading_mask: bits(&[3, 4, 5, 6, 7, 8]),
+            },
             aided_timeout_s: 5.0,
         }
     }
@@ -163,7 +195,9 @@ impl NavConfig {
             && pos(self.gravity_mps2)
             && pos(self.max_imu_dt_s)
             && pos(self.markov_tau_s)
-            && [self.heading, self.depth, self.velocity, self.position].iter().all(|s| pos(s.sigma) && s.sigma_floor >= 0.0 && s.gate > 0.0 && s.gate_state_max > 0.0)
+            && [self.heading, self.depth, self.velocity, self.position]
+                .iter()
+                .all(|s| pos(s.sigma) && s.sigma_floor >= 0.0 && s.gate > 0.0 && s.gate_state_max > 0.0)
     }
 }
 
@@ -303,10 +337,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     pub fn propagate(&mut self, imu: &ImuSample) -> Result<(), NavError> {
         let g = Vector3::from(imu.gyro_radps);
         let a = Vector3::from(imu.accel_mps2);
-        if !g.iter().chain(a.iter()).all(|v| v.is_finite())
-            || g.amax() > self.cfg.max_gyro_radps
-            || a.amax() > self.cfg.max_accel_mps2
-        {
+        if !g.iter().chain(a.iter()).all(|v| v.is_finite()) || g.amax() > self.cfg.max_gyro_radps || a.amax() > self.cfg.max_accel_mps2 {
             self.imu_rejects = self.imu_rejects.saturating_add(1);
             return Err(NavError::NonFinite);
         }
@@ -458,23 +489,14 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             att_nb_wxyz: [q.w, q.i, q.j, q.k],
             sigma_pos_m: [sd(POS), sd(POS + 1), sd(POS + 2)],
             sigma_vel_mps: [sd(VEL), sd(VEL + 1), sd(VEL + 2)],
-            sigma_att_rad: [
-                libm::sqrtf(pl[(0, 0)].max(0.0)),
-                libm::sqrtf(pl[(1, 1)].max(0.0)),
-                libm::sqrtf(pl[(2, 2)].max(0.0)),
-            ],
+            sigma_att_rad: [libm::sqrtf(pl[(0, 0)].max(0.0)), libm::sqrtf(pl[(1, 1)].max(0.0)), libm::sqrtf(pl[(2, 2)].max(0.0))],
         }
     }
 
     /// Current measurement noise (adapted or configured) of each aiding kind, as variances:
     /// heading, depth, velocity (mean of the diagonal), position (mean of the diagonal).
     pub fn r_diag(&self) -> [f32; 4] {
-        [
-            self.noise_heading.r[(0, 0)],
-            self.noise_depth.r[(0, 0)],
-            self.noise_vel.r.trace() / 3.0,
-            self.noise_pos.r.trace() / 3.0,
-        ]
+        [self.noise_heading.r[(0, 0)], self.noise_depth.r[(0, 0)], self.noise_vel.r.trace() / 3.0, self.noise_pos.r.trace() / 3.0]
     }
 
     /// Latest fading factor applied by an accepted update.

@@ -8,8 +8,8 @@ use nalgebra::{SVector, UnitQuaternion, Vector1};
 
 use crate::ukf::{AngleSpace, UpdateReport};
 
-use super::filter::{NavError, NavFilter, KIND_HEADING};
-use super::state::{seg, yaw_of, NominalState, ATT};
+use super::filter::{KIND_HEADING, NavError, NavFilter};
+use super::state::{ATT, NominalState, seg, yaw_of};
 
 /// Predicted heading of an error sigma point.
 pub fn h_heading<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector1<f32> {

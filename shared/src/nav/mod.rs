@@ -31,7 +31,9 @@ pub mod state;
 pub mod strapdown;
 pub mod velocity;
 
-pub use filter::{NavConfig, NavError, NavFilter, NavFilter15, NavFilter18, NavInit, SensorConfig, KIND_DEPTH, KIND_HEADING, KIND_POSITION, KIND_VELOCITY};
+pub use filter::{
+    KIND_DEPTH, KIND_HEADING, KIND_POSITION, KIND_VELOCITY, NavConfig, NavError, NavFilter, NavFilter15, NavFilter18, NavInit, SensorConfig,
+};
 pub use state::NominalState;
 
 #[cfg(test)]

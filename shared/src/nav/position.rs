@@ -7,11 +7,11 @@
 
 use nalgebra::{Matrix3, SVector, Vector3};
 
-use crate::ukf::{Euclidean, UpdateReport};
 use crate::ukf::pd;
+use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{NavError, NavFilter, KIND_POSITION};
-use super::state::{seg, NominalState, POS};
+use super::filter::{KIND_POSITION, NavError, NavFilter};
+use super::state::{NominalState, POS, seg};
 
 /// Predicted position of an error sigma point.
 pub fn h_position<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector3<f32> {

@@ -30,11 +30,7 @@ pub const MARKOV: usize = 15;
 /// Three components of an error vector starting at `i` (zero where out of range, so a 15-state
 /// filter reads its absent Markov block as zero without a panic path).
 pub fn seg<const N: usize>(x: &SVector<f32, N>, i: usize) -> Vector3<f32> {
-    Vector3::new(
-        x.get(i).copied().unwrap_or(0.0),
-        x.get(i + 1).copied().unwrap_or(0.0),
-        x.get(i + 2).copied().unwrap_or(0.0),
-    )
+    Vector3::new(x.get(i).copied().unwrap_or(0.0), x.get(i + 1).copied().unwrap_or(0.0), x.get(i + 2).copied().unwrap_or(0.0))
 }
 
 /// Write three components at `i` (ignored where out of range).

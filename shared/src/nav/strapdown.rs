@@ -21,7 +21,7 @@
 
 use nalgebra::{Matrix3, SVector, UnitQuaternion, Vector3};
 
-use super::state::{seg, set_seg, NominalState, ATT, BA, BG, MARKOV, POS, VEL};
+use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, seg, set_seg};
 
 /// Increments accumulated since the last covariance step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,19 +36,19 @@ pub struct Increments {
 
 impl Increments {
     pub fn zero() -> Self {
-        Self {
-            dt_s: 0.0,
-            dv_f: Vector3::zeros(),
-            dp_f: Vector3::zeros(),
-            c: Matrix3::zeros(),
-            cc: Matrix3::zeros(),
-            samples: 0,
-        }
+        Self { dt_s: 0.0, dv_f: Vector3::zeros(), dp_f: Vector3::zeros(), c: Matrix3::zeros(), cc: Matrix3::zeros(), samples: 0 }
     }
 }
 
 /// One IMU sample of bias-corrected rates: integrate the nominal state and the increments.
-pub fn step(nom: &mut NominalState, inc: &mut Increments, gyro_radps: &Vector3<f32>, accel_mps2: &Vector3<f32>, dt: f32, gravity_mps2: f32) {
+pub fn step(
+    nom: &mut NominalState,
+    inc: &mut Increments,
+    gyro_radps: &Vector3<f32>,
+    accel_mps2: &Vector3<f32>,
+    dt: f32,
+    gravity_mps2: f32,
+) {
     let w = gyro_radps - nom.gyro_bias_radps - nom.gyro_markov_radps;
     let f = accel_mps2 - nom.accel_bias_mps2;
     let half = UnitQuaternion::from_scaled_axis(w * (0.5 * dt));

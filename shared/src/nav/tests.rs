@@ -1,8 +1,8 @@
 //! Failure modes peers hit: non-finite samples, covariance losing definiteness under bad tuning,
 //! gates that can no longer fail after an outage.
 
-use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector1, Vector3};
 use nalgebra::linalg::Cholesky;
+use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector1, Vector3};
 
 use super::*;
 use crate::ukf::{Euclidean, MeasNoise, Ukf, UkfConfig, UkfError};
@@ -66,11 +66,16 @@ fn nonfinite_samples_are_rejected_without_touching_the_state() {
 
 #[test]
 fn ukf_core_rejects_nonfinite_measurement_and_model_output() {
-    let mut ukf: Ukf<f64, 2, 5> = Ukf::new(UkfConfig::plain(0.5, 2.0, 0.0), SVector::<f64, 2>::new(1.0, 2.0), SMatrix::identity(), SMatrix::identity() * 0.01).unwrap();
+    let mut ukf: Ukf<f64, 2, 5> =
+        Ukf::new(UkfConfig::plain(0.5, 2.0, 0.0), SVector::<f64, 2>::new(1.0, 2.0), SMatrix::identity(), SMatrix::identity() * 0.01)
+            .unwrap();
     let mut n = MeasNoise::new(SMatrix::<f64, 1, 1>::new(0.1));
     let (x, p) = (*ukf.x(), *ukf.p());
     assert_eq!(ukf.update::<1, Euclidean, _>(&Vector1::new(f64::NAN), &mut n, |x| Vector1::new(x[0])), Err(UkfError::NonFiniteInput));
-    assert_eq!(ukf.update::<1, Euclidean, _>(&Vector1::new(1.0), &mut n, |x| Vector1::new(x[0] / 0.0 * 0.0)), Err(UkfError::NonFiniteResult));
+    assert_eq!(
+        ukf.update::<1, Euclidean, _>(&Vector1::new(1.0), &mut n, |x| Vector1::new(x[0] / 0.0 * 0.0)),
+        Err(UkfError::NonFiniteResult)
+    );
     assert_eq!(ukf.predict(1.0, |x| x * f64::INFINITY), Err(UkfError::NonFiniteResult));
     assert_eq!((*ukf.x(), *ukf.p()), (x, p));
     assert_eq!(ukf.health().nonfinite_rejects, 3);
@@ -157,7 +162,10 @@ fn covariance_stays_pd_through_a_million_steps_of_bad_tuning() {
     assert!(h.predicts >= 100_000, "{}", h.predicts);
     // The pathological tuning does need repairs, and they are reported.
     assert_eq!(nav.health().pd_repairs, h.pd_repairs + h.adapt_fallbacks);
-    println!("predicts {} updates accepted {} repairs {} adapt fallbacks {} gate rejects {}", h.predicts, h.updates_accepted, h.pd_repairs, h.adapt_fallbacks, h.gate_rejects);
+    println!(
+        "predicts {} updates accepted {} repairs {} adapt fallbacks {} gate rejects {}",
+        h.predicts, h.updates_accepted, h.pd_repairs, h.adapt_fallbacks, h.gate_rejects
+    );
 }
 
 #[test]

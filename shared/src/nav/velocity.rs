@@ -8,8 +8,8 @@ use nalgebra::{SVector, UnitQuaternion, Vector3};
 
 use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{NavError, NavFilter, KIND_VELOCITY};
-use super::state::{seg, NominalState, ATT, VEL};
+use super::filter::{KIND_VELOCITY, NavError, NavFilter};
+use super::state::{ATT, NominalState, VEL, seg};
 
 /// Predicted body velocity of an error sigma point.
 pub fn h_body_velocity<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector3<f32> {
@@ -19,7 +19,12 @@ pub fn h_body_velocity<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>)
 
 impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Velocity in the body frame (FRD, m/s) with a per-axis 1-sigma (`None`: configured/adapted).
-    pub fn update_body_velocity(&mut self, t_us: u64, vel_frd_mps: [f32; 3], sigma_mps: Option<f32>) -> Result<UpdateReport<f32>, NavError> {
+    pub fn update_body_velocity(
+        &mut self,
+        t_us: u64,
+        vel_frd_mps: [f32; 3],
+        sigma_mps: Option<f32>,
+    ) -> Result<UpdateReport<f32>, NavError> {
         self.begin_update(&[vel_frd_mps[0], vel_frd_mps[1], vel_frd_mps[2], sigma_mps.unwrap_or(1.0)])?;
         if let Some(s) = sigma_mps.filter(|s| *s > 0.0) {
             if !(self.cfg.ukf.adapt.r_cov && self.noise_vel.adapt) {

@@ -9,10 +9,10 @@
 
 use core::marker::PhantomData;
 
-use nalgebra::{RealField, SMatrix, SVector};
 use nalgebra::linalg::Cholesky;
+use nalgebra::{RealField, SMatrix, SVector};
 
-use super::adapt::{sage_husa_cov, sage_husa_d, AdaptConfig, MeasNoise};
+use super::adapt::{AdaptConfig, MeasNoise, sage_husa_cov, sage_husa_d};
 use super::gate::{gating_cov, nis};
 use super::pd::{all_finite, finalize};
 use super::space::{Euclidean, Space};
@@ -40,15 +40,7 @@ pub struct UkfConfig<T> {
 impl<T: RealField + Copy> UkfConfig<T> {
     /// Plain UKF with the given unscented-transform parameters.
     pub fn plain(alpha: T, beta: T, kappa: T) -> Self {
-        Self {
-            alpha,
-            beta,
-            kappa,
-            adapt: AdaptConfig::plain(),
-            p_floor: T::zero(),
-            p_rel_floor: T::zero(),
-            q_floor: T::zero(),
-        }
+        Self { alpha, beta, kappa, adapt: AdaptConfig::plain(), p_floor: T::zero(), p_rel_floor: T::zero(), q_floor: T::zero() }
     }
 }
 
@@ -121,14 +113,8 @@ pub struct Ukf<T: RealField + Copy, const N: usize, const S: usize, X = Euclidea
 
 impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T, N, S, X> {
     /// A filter at `x0` with covariance `p0` and process noise `q`.
-    pub fn new(
-        cfg: UkfConfig<T>,
-        x0: SVector<T, N>,
-        p0: SMatrix<T, N, N>,
-        q: SMatrix<T, N, N>,
-    ) -> Result<Self, UkfError> {
-        let w = SigmaWeights::<T, S>::merwe(N, cfg.alpha, cfg.beta, cfg.kappa)
-            .map_err(|_| UkfError::BadConfig)?;
+    pub fn new(cfg: UkfConfig<T>, x0: SVector<T, N>, p0: SMatrix<T, N, N>, q: SMatrix<T, N, N>) -> Result<Self, UkfError> {
+        let w = SigmaWeights::<T, S>::merwe(N, cfg.alpha, cfg.beta, cfg.kappa).map_err(|_| UkfError::BadConfig)?;
         if !cfg.adapt.is_valid() {
             return Err(UkfError::BadConfig);
         }

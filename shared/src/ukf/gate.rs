@@ -9,13 +9,13 @@
 //! however large `P` is. To re-acquire after a real jump, the cap is lifted once a configured
 //! number of consecutive measurements has been rejected.
 
-use nalgebra::{RealField, SMatrix, SVector};
 use nalgebra::linalg::Cholesky;
+use nalgebra::{RealField, SMatrix, SVector};
 
 /// Chi-square quantiles at p = 0.999 for 1..=18 degrees of freedom (scipy.stats.chi2.ppf).
 const CHI2_999: [f64; 18] = [
-    10.828, 13.816, 16.266, 18.467, 20.515, 22.458, 24.322, 26.124, 27.877, 29.588, 31.264, 32.909,
-    34.528, 36.123, 37.697, 39.252, 40.790, 42.312,
+    10.828, 13.816, 16.266, 18.467, 20.515, 22.458, 24.322, 26.124, 27.877, 29.588, 31.264, 32.909, 34.528, 36.123, 37.697, 39.252, 40.790,
+    42.312,
 ];
 
 /// Chi-square quantile at p = 0.999 for `dof` degrees of freedom (clamped to 1..=18).
@@ -33,11 +33,7 @@ pub fn nis<T: RealField + Copy, const M: usize>(e: &SVector<T, M>, s: &SMatrix<T
 }
 
 /// The gating covariance `R + c P_zz` (see module doc).
-pub fn gating_cov<T: RealField + Copy, const M: usize>(
-    pzz: &SMatrix<T, M, M>,
-    r: &SMatrix<T, M, M>,
-    state_max: T,
-) -> SMatrix<T, M, M> {
+pub fn gating_cov<T: RealField + Copy, const M: usize>(pzz: &SMatrix<T, M, M>, r: &SMatrix<T, M, M>, state_max: T) -> SMatrix<T, M, M> {
     let mut worst = T::zero();
     for i in 0..M {
         let ratio = pzz[(i, i)] / r[(i, i)];

@@ -9,8 +9,8 @@
 //! `SymmetricEigen` needs typenum bounds (`Const<N>: DimSub<U1>`) that would spread to every
 //! generic signature of the filter, and repairs are rare, so speed does not matter.
 
-use nalgebra::{RealField, SMatrix, SVector};
 use nalgebra::linalg::Cholesky;
+use nalgebra::{RealField, SMatrix, SVector};
 
 /// Eigenvalues and eigenvectors (columns) of a symmetric matrix by cyclic Jacobi rotations.
 /// `None` if it does not converge in `max_sweeps` or the input is not finite.
@@ -90,11 +90,7 @@ pub fn all_finite<T: RealField + Copy, const R: usize, const C: usize>(m: &SMatr
 
 /// Floor the eigenvalues of a symmetric matrix. Returns `None` when the decomposition fails
 /// (non-finite input).
-pub fn repair<T: RealField + Copy, const N: usize>(
-    p: &SMatrix<T, N, N>,
-    abs_floor: T,
-    rel_floor: T,
-) -> Option<SMatrix<T, N, N>> {
+pub fn repair<T: RealField + Copy, const N: usize>(p: &SMatrix<T, N, N>, abs_floor: T, rel_floor: T) -> Option<SMatrix<T, N, N>> {
     if !all_finite(p) {
         return None;
     }
@@ -118,11 +114,7 @@ pub struct Finalized<T: RealField + Copy, const N: usize> {
 
 /// Symmetrize `p`, factor it, and repair it if the factorization fails. `None` if even the
 /// repaired matrix cannot be factored (non-finite input).
-pub fn finalize<T: RealField + Copy, const N: usize>(
-    mut p: SMatrix<T, N, N>,
-    abs_floor: T,
-    rel_floor: T,
-) -> Option<Finalized<T, N>> {
+pub fn finalize<T: RealField + Copy, const N: usize>(mut p: SMatrix<T, N, N>, abs_floor: T, rel_floor: T) -> Option<Finalized<T, N>> {
     symmetrize(&mut p);
     if all_finite(&p) {
         if let Some(c) = Cholesky::new(p) {

@@ -59,10 +59,7 @@ pub fn wrap_pi<T: RealField + Copy>(a: T) -> T {
 }
 
 /// Circular weighted mean of angles: `atan2(sum w sin, sum w cos)`.
-pub fn circular_mean<T: RealField + Copy, const S: usize>(
-    angles: impl Iterator<Item = T>,
-    wm: &[T; S],
-) -> T {
+pub fn circular_mean<T: RealField + Copy, const S: usize>(angles: impl Iterator<Item = T>, wm: &[T; S]) -> T {
     let (mut s, mut c) = (T::zero(), T::zero());
     for (a, w) in angles.zip(wm.iter()) {
         s += a.sin() * *w;

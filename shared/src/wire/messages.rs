@@ -292,10 +292,17 @@ pub enum ConfigItem {
 pub enum Command {
     SetConfig(ConfigItem),
     /// UTC microseconds since the Unix epoch at sensor-head time `t_us`.
-    SetTime { t_us: u64, utc_unix_us: i64 },
+    SetTime {
+        t_us: u64,
+        utc_unix_us: i64,
+    },
     /// A position fix (e.g. a recognised topological node) with its covariance (upper triangle,
     /// row-major: xx, xy, xz, yy, yz, zz) at sensor-head time `t_us`.
-    PositionFix { t_us: u64, pos_ned_m: [f32; 3], cov_ned_m2: [f32; 6] },
+    PositionFix {
+        t_us: u64,
+        pos_ned_m: [f32; 3],
+        cov_ned_m2: [f32; 6],
+    },
     /// Re-initialise the estimator (not a reboot).
     ResetFilter,
     /// Reboot the sensor head.

@@ -42,7 +42,15 @@ fn samples() -> Vec<Uplink> {
         Uplink::Raw(RawSample::Polarization(PolarizationSample { t_us: 6, unit: 3, counts: [0, -1, 32767, -32768] })),
         Uplink::Fault(Fault { t_us: 7, source: FaultSource::Polarization { unit: 2 }, kind: FaultKind::BusNack, count: 9 }),
         Uplink::Ack(CommandAck { seq: 65535, result: Err(Refusal::OutOfRange) }),
-        Uplink::Compass(CompassReport { t_us: 8, heading_rad: None, sigma_heading_rad: f32::INFINITY, sun_rel_azimuth_rad: 0.0, sun_elevation_rad: 0.0, no_fix_reason: 3, units_used: 0 }),
+        Uplink::Compass(CompassReport {
+            t_us: 8,
+            heading_rad: None,
+            sigma_heading_rad: f32::INFINITY,
+            sun_rel_azimuth_rad: 0.0,
+            sun_elevation_rad: 0.0,
+            no_fix_reason: 3,
+            units_used: 0,
+        }),
     ]
 }
 

@@ -17,9 +17,9 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::debug;
 use defmt_semihosting as _;
 
+mod cases;
 #[path = "../qemu/cmsdk_uart.rs"]
 mod cmsdk_uart;
-mod cases;
 
 const RELOAD: u32 = 0x00FF_FFFF;
 const INSTRUCTIONS_PER_TICK: u64 = 40;
@@ -82,8 +82,16 @@ fn main() -> ! {
     // Calibration: 1000 iterations of a known instruction sequence (10 NOPs per call).
     bench.run("calibration.10_nops", 1000, || {
         for _ in 0..1 {
-            cortex_m::asm::nop(); cortex_m::asm::nop(); cortex_m::asm::nop(); cortex_m::asm::nop(); cortex_m::asm::nop();
-            cortex_m::asm::nop(); cortex_m::asm::nop(); cortex_m::asm::nop(); cortex_m::asm::nop(); cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
+            cortex_m::asm::nop();
         }
     });
     cases::run_all(&mut bench);

@@ -20,11 +20,11 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use core::cell::RefCell;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::debug;
 use defmt_semihosting as _;
-use core::cell::RefCell;
 
 /// The bridge link, or nothing (no sensors).
 struct PipeLink(Option<SemihostPipe>);
@@ -129,13 +129,12 @@ fn parse_u64(s: &[u8]) -> Option<u64> {
     if s.is_empty() {
         return None;
     }
-    s.iter().try_fold(0u64, |acc, &c| {
-        if c.is_ascii_digit() { acc.checked_mul(10)?.checked_add(u64::from(c - b'0')) } else { None }
-    })
+    s.iter().try_fold(0u64, |acc, &c| if c.is_ascii_digit() { acc.checked_mul(10)?.checked_add(u64::from(c - b'0')) } else { None })
 }
 
 fn run_options() -> RunOptions {
-    let mut opts = RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None, utc_unix_us: None, lat_e7: None, lon_e7: None };
+    let mut opts =
+        RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None, utc_unix_us: None, lat_e7: None, lon_e7: None };
     let mut buf = [0u8; 640];
     // SYS_GET_CMDLINE (0x15): parameter block [buffer address, buffer length]; the host writes
     // a NUL-terminated command line and updates the length.
@@ -207,7 +206,12 @@ fn main() -> ! {
             BridgeI2c::new(&bridge, 0),
             &mut delay,
         );
-        defmt::info!("sensor init: imu {=?} polarization {=?} depth {=?}", suite.init.imu.is_none(), suite.init.polarization.map(|p| p.is_none()), suite.init.depth.is_none());
+        defmt::info!(
+            "sensor init: imu {=?} polarization {=?} depth {=?}",
+            suite.init.imu.is_none(),
+            suite.init.polarization.map(|p| p.is_none()),
+            suite.init.depth.is_none()
+        );
         suite
     });
 

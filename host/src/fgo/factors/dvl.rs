@@ -43,8 +43,8 @@ impl DvlFactor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::factors::Factor;
+    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::state::{ImuBias, NavState};
 
     #[test]

@@ -12,10 +12,10 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 use super::{Evaluation, Noise};
+use crate::fgo::FgoError;
 use crate::fgo::preintegration::Preintegrated;
 use crate::fgo::so3;
 use crate::fgo::state::NodeState;
-use crate::fgo::FgoError;
 
 #[derive(Debug, Clone)]
 pub struct ImuFactor {
@@ -125,8 +125,8 @@ impl BiasRandomWalkFactor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::factors::Factor;
+    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::preintegration::ImuParams;
     use crate::fgo::state::{ImuBias, NavState};
 

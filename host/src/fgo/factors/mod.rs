@@ -10,8 +10,8 @@ pub mod usbl;
 
 use nalgebra::{DMatrix, DVector, SMatrix};
 
-use super::state::NodeState;
 use super::FgoError;
+use super::state::NodeState;
 
 pub use dvl::DvlFactor;
 pub use imu::{BiasRandomWalkFactor, ImuFactor};
@@ -120,14 +120,8 @@ impl Noise {
             return Err(FgoError::Numeric("covariance is not a finite square matrix".into()));
         }
         let sym = (&cov + cov.transpose()) * 0.5;
-        let chol = sym
-            .clone()
-            .cholesky()
-            .ok_or_else(|| FgoError::Numeric(format!("covariance is not positive definite: {sym}")))?;
-        let l_inv = chol
-            .l()
-            .try_inverse()
-            .ok_or_else(|| FgoError::Numeric("covariance Cholesky factor is singular".into()))?;
+        let chol = sym.clone().cholesky().ok_or_else(|| FgoError::Numeric(format!("covariance is not positive definite: {sym}")))?;
+        let l_inv = chol.l().try_inverse().ok_or_else(|| FgoError::Numeric("covariance Cholesky factor is singular".into()))?;
         Ok(Self { cov: sym, whitener: l_inv })
     }
 

@@ -6,9 +6,9 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 use super::{Evaluation, Noise};
+use crate::fgo::FgoError;
 use crate::fgo::so3;
 use crate::fgo::state::NodeState;
-use crate::fgo::FgoError;
 
 #[derive(Debug, Clone)]
 pub struct PriorFactor {
@@ -70,8 +70,8 @@ impl MarginalPrior {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::factors::Factor;
+    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::state::{ImuBias, NavState};
 
     #[test]

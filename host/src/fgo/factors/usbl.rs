@@ -35,8 +35,8 @@ impl UsblFactor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::factors::Factor;
+    use crate::fgo::factors::testutil::check_jacobians;
     use crate::fgo::state::{ImuBias, NavState};
 
     #[test]
