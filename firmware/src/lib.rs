@@ -14,6 +14,7 @@ pub mod head_suite;
 pub mod log;
 pub mod sensors;
 pub mod telemetry;
+pub mod time;
 
 pub use app::{App, AppConfig};
 pub use telemetry::{Telemetry, TelemetrySink};

@@ -22,6 +22,7 @@ use stm32f4xx_hal::{
     rcc::Config,
     serial::{self, Serial},
 };
+use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
 use subnav_shared::wire::Board;
 
@@ -39,26 +40,18 @@ fn SysTick() {
 
 defmt::timestamp!("{=u64:us}", u64::from(MILLIS.load(Ordering::Relaxed)) * 1000);
 
-struct Clock {
-    last_ms: u32,
-    high: u64,
-}
+/// Reads the tick count and SysTick consistently (the tick may fire between the two reads).
+struct Clock(TickClock);
 
 impl Clock {
     fn now_us(&mut self) -> u64 {
-        let (ms, cvr) = loop {
+        loop {
             let a = MILLIS.load(Ordering::Relaxed);
             let cvr = cortex_m::peripheral::SYST::get_current();
             if MILLIS.load(Ordering::Relaxed) == a {
-                break (a, cvr);
+                return self.0.now_us(a, cvr);
             }
-        };
-        if ms < self.last_ms {
-            self.high += 1 << 32;
         }
-        self.last_ms = ms;
-        let sub_us = u64::from(RELOAD - cvr.min(RELOAD)) / u64::from(CORE_HZ / 1_000_000);
-        (self.high + u64::from(ms)) * 1000 + sub_us
     }
 }
 
@@ -97,7 +90,7 @@ fn main() -> ! {
     let (tx, mut rx) = serial.split();
     let mut sink = UartSink(tx);
 
-    let mut clock = Clock { last_ms: 0, high: 0 };
+    let mut clock = Clock(TickClock::new(CORE_HZ));
     let mut app = App::new(Board::Stm32F405);
     defmt::info!("board stm32f405");
     app.boot(clock.now_us(), &mut sink);

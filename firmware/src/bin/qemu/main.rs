@@ -42,6 +42,7 @@ impl ByteLink for PipeLink {
 
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
 use subnav_shared::wire::{Board, Command, ConfigItem, Downlink};
 
@@ -61,28 +62,18 @@ fn SysTick() {
     MILLIS.fetch_add(1, Ordering::Relaxed);
 }
 
-/// Monotonic microseconds since boot (wraps after 49 days of uptime in the ms counter; a
-/// 64-bit extension is kept by the caller-visible `Clock`).
-struct Clock {
-    last_ms: u32,
-    high: u64,
-}
+/// Reads the tick count and SysTick consistently (the tick may fire between the two reads).
+struct Clock(TickClock);
 
 impl Clock {
     fn now_us(&mut self) -> u64 {
-        let (ms, cvr) = loop {
+        loop {
             let a = MILLIS.load(Ordering::Relaxed);
             let cvr = cortex_m::peripheral::SYST::get_current();
             if MILLIS.load(Ordering::Relaxed) == a {
-                break (a, cvr);
+                return self.0.now_us(a, cvr);
             }
-        };
-        if ms < self.last_ms {
-            self.high += 1 << 32;
         }
-        self.last_ms = ms;
-        let sub_us = u64::from(RELOAD - cvr.min(RELOAD)) / u64::from(CORE_HZ / 1_000_000);
-        (self.high + u64::from(ms)) * 1000 + sub_us
     }
 }
 
@@ -176,7 +167,7 @@ fn main() -> ! {
 
     let mut uart = Uart::uart0();
     let opts = run_options();
-    let mut clock = Clock { last_ms: 0, high: 0 };
+    let mut clock = Clock(TickClock::new(CORE_HZ));
     let mut app = App::new(Board::QemuMps2An386);
 
     let pipe = match (&opts.bus_req, &opts.bus_resp) {
