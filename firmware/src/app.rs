@@ -85,6 +85,20 @@ pub struct App {
     polarization_task: Periodic,
     depth_task: Periodic,
     faults: FaultLog,
+    /// Position fixes stamped later than their arrival, applied when the head's clock reaches
+    /// their time (a host that knows a fix's time ahead, e.g. a simulator or a scheduled
+    /// transponder interrogation, gets it applied at exactly that instant).
+    pending_fixes: heapless::Vec<PendingFix, MAX_PENDING_FIXES>,
+}
+
+/// Position fixes that can wait for their time.
+pub const MAX_PENDING_FIXES: usize = 4;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PendingFix {
+    t_us: u64,
+    pos_ned_m: [f32; 3],
+    cov_ned_m2: [f32; 6],
 }
 
 impl App {
@@ -107,6 +121,7 @@ impl App {
             polarization_task: Periodic::new(1_000_000 / head::POLARIZATION_RATE_HZ as u64),
             depth_task: Periodic::new(1_000_000 / head::DEPTH_RATE_HZ as u64),
             faults: FaultLog::new(),
+            pending_fixes: heapless::Vec::new(),
         }
     }
 
@@ -215,6 +230,12 @@ impl App {
 
     /// Run whatever tasks are due at `now_us`. Returns what the board must do next.
     pub fn poll(&mut self, now_us: u64, sink: &mut impl TelemetrySink) -> BoardRequest {
+        while let Some(i) = self.pending_fixes.iter().position(|f| f.t_us <= now_us) {
+            let f = self.pending_fixes.swap_remove(i);
+            if self.estimator.on_position_fix(f.t_us, f.pos_ned_m, f.cov_ned_m2).is_err() {
+                warn!("position fix for {=u64} us dropped: the filter is not running", f.t_us);
+            }
+        }
         if self.nav_task.due(now_us) {
             let nav = self.estimator.solution(now_us);
             self.telemetry.send(&Uplink::Nav(nav), sink);
@@ -237,16 +258,15 @@ impl App {
     /// Apply a command as if it came over the downlink (boards use this for a configured start:
     /// time and origin given at launch). It is acknowledged like any other.
     pub fn handle_command(&mut self, now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
-        let result = self.apply(cmd.command);
+        let result = self.apply(now_us, cmd.command);
         match result {
             Ok(()) => info!("command {=u16} accepted", cmd.seq),
             Err(_) => warn!("command {=u16} refused", cmd.seq),
         }
-        let _ = now_us;
         self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result }), sink);
     }
 
-    fn apply(&mut self, command: Command) -> Result<(), Refusal> {
+    fn apply(&mut self, now_us: u64, command: Command) -> Result<(), Refusal> {
         let command = match command {
             Command::PositionFix { t_us, pos_ned_m, cov_ned_m2 } => {
                 if !pos_ned_m.iter().chain(cov_ned_m2.iter()).all(|v| v.is_finite()) {
@@ -255,10 +275,14 @@ impl App {
                 if !covariance_is_pd(&cov_ned_m2) {
                     return Err(Refusal::NotPositiveDefinite);
                 }
+                if t_us > now_us {
+                    return self.pending_fixes.push(PendingFix { t_us, pos_ned_m, cov_ned_m2 }).map_err(|_| Refusal::Busy);
+                }
                 return self.estimator.on_position_fix(t_us, pos_ned_m, cov_ned_m2).map_err(|_| Refusal::Busy);
             }
             Command::ResetFilter => {
                 self.estimator.reset();
+                self.pending_fixes.clear();
                 return Ok(());
             }
             other => other,
@@ -470,6 +494,44 @@ mod tests {
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Compass(c) if c.heading_rad.is_none() && c.no_fix_reason != 0)));
         let imu_raw = msgs.iter().filter(|m| matches!(m, Uplink::Raw(RawSample::Imu(_)))).count();
         assert!((2900..=3001).contains(&imu_raw), "raw IMU at 200 Hz minus failed reads: {imu_raw}");
+    }
+
+    #[test]
+    fn a_fix_stamped_ahead_is_applied_at_its_time_and_not_before() {
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut head = StillHead { imu_reads: 0 };
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        let run = |app: &mut App, head: &mut StillHead, out: &mut Vec<u8>, from_ms: u64, to_ms: u64| {
+            for ms in from_ms..to_ms {
+                app.sensor_tick(ms * 1000, head, out);
+                app.poll(ms * 1000, out);
+            }
+        };
+        run(&mut app, &mut head, &mut out, 0, 12_000);
+        let before = app.estimator().solution(12_000_000);
+        // A fix 2 m north (inside the gate), due at 13 s, sent at 12 s.
+        let fix = Command::PositionFix { t_us: 13_000_000, pos_ned_m: [2.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
+        app.handle_command(12_000_000, Downlink { seq: 7, command: fix }, &mut out);
+        run(&mut app, &mut head, &mut out, 12_000, 12_999);
+        let waiting = app.estimator().solution(12_998_000);
+        assert!((waiting.pos_ned_m[0] - before.pos_ned_m[0]).abs() < 0.1, "applied early: {:?}", waiting.pos_ned_m);
+        run(&mut app, &mut head, &mut out, 12_999, 13_001);
+        let after = app.estimator().solution(13_000_000);
+        assert!(after.pos_ned_m[0] > 0.5, "the fix pulls the position north: {:?}", after.pos_ned_m);
+        let acks: Vec<CommandAck> =
+            decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
+        assert!(acks.contains(&CommandAck { seq: 7, result: Ok(()) }));
+        // A full queue refuses with a reason.
+        for k in 0..MAX_PENDING_FIXES as u16 {
+            let f = Command::PositionFix { t_us: 20_000_000, pos_ned_m: [0.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
+            app.handle_command(13_000_000, Downlink { seq: 100 + k, command: f }, &mut out);
+        }
+        let f = Command::PositionFix { t_us: 20_000_000, pos_ned_m: [0.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
+        app.handle_command(13_000_000, Downlink { seq: 200, command: f }, &mut out);
+        let acks: Vec<CommandAck> =
+            decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
+        assert!(acks.contains(&CommandAck { seq: 200, result: Err(Refusal::Busy) }));
     }
 
     #[test]

@@ -3,11 +3,18 @@
 //! samples and asks it for telemetry.
 //!
 //! Alignment (the head must be at rest): roll and pitch from the mean specific force over
-//! `ALIGN_S`, the gyro bias from the mean rate; yaw from the
-//! first compass fix within `ALIGN_MAX_S`, else yaw 0 with a large 1-sigma (the compass then
-//! pulls it in). Depth is positive down (NED z).
+//! `ALIGN_S`, the gyro bias from the mean rate; yaw from `ALIGN_YAW_FIXES` mutually consistent
+//! compass fixes within `ALIGN_MAX_S`, else yaw 0 with a large 1-sigma (the compass then pulls
+//! it in). A single fix is not trusted: near the surface the compass can return an isolated
+//! wrong fix (measured: one fix 133 deg off at 6.9 s, the only one in 13 s, in the default
+//! scenario with seed 1), and a filter aligned on it rejects every later fix at its gate.
+//!
+//! Heading re-acquisition: when the heading gate has rejected `RESET_YAW_FIXES` compass fixes in
+//! a row and their innovations agree with each other, the filter's heading is wrong, not the
+//! compass: the estimator resets the heading to the fixes' circular mean
+//! ([`NavFilter15::reset_heading`]). Depth is positive down (NED z).
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, SMatrix, Vector3};
 use subnav_shared::compass::{self, CompassInput, UnitModel};
 use subnav_shared::ephemeris::{Observer, delta_t_estimate_s};
 use subnav_shared::head;
@@ -20,8 +27,65 @@ const ALIGN_MAX_S: f32 = 10.0;
 /// spreads the error-state sigma points wrap around the circle and the covariance collapses
 /// (measured: an initial sigma of pi came out as 0.10 rad after 2 s of depth updates).
 const YAW_UNKNOWN_SIGMA_RAD: f32 = 1.5;
+/// Consistent compass fixes needed to take the yaw during alignment.
+const ALIGN_YAW_FIXES: u32 = 5;
+/// Consecutive gate-rejected, mutually consistent fixes that trigger a heading reset (3 s at
+/// 10 Hz: longer than any plausible run of outliers from a working compass).
+const RESET_YAW_FIXES: u32 = 30;
+/// Minimum mean resultant length of a consistent set of angles: 0.98 is a circular standard
+/// deviation of 11.5 deg (`sqrt(-2 ln R)`), twice the worst compass RMSE measured in the
+/// simulated dives (6.3 deg).
+const CONSISTENT_RESULTANT: f32 = 0.98;
+/// Heading error the compass's own sigma does not include (unit calibration residuals, the
+/// polarization model's limits). The solver's sigma covers only photodiode noise: in the
+/// simulated 5-minute dives it reported 0.09 deg while the fixes were 0.3 deg off (RMS), and a
+/// filter that believed it claimed a yaw sigma of 0.02 deg. This error changes slowly (with the
+/// sun geometry and the attitude), so averaging fixes does not reduce it: it is added to every
+/// fix with its variance multiplied by the number of fixes in one correlation time
+/// (`HEADING_MODEL_CORR_S` at the polarization rate), the usual treatment of time-correlated
+/// measurement noise without a state for it.
+const HEADING_MODEL_SIGMA_RAD: f32 = 0.5 * core::f32::consts::PI / 180.0;
+const HEADING_MODEL_CORR_S: f32 = 10.0;
+
+/// 1-sigma of the tilt error of the levelling itself (noise of the mean specific force over
+/// `ALIGN_S`, residual motion), on top of the part the accelerometer bias explains.
+const ALIGNED_TILT_SIGMA_RAD: f32 = 1e-3;
 /// 1-sigma of the gyro bias left after the at-rest estimate (rad/s): 0.01 deg/s.
 const ALIGNED_GYRO_BIAS_SIGMA_RADPS: f32 = 1.75e-4;
+
+/// Circular statistics of a run of angles (compass fixes, or heading innovations).
+#[derive(Debug, Clone, Copy, Default)]
+struct AngleRun {
+    n: u32,
+    sum_sin: f32,
+    sum_cos: f32,
+    sum_sigma: f32,
+}
+
+impl AngleRun {
+    fn push(&mut self, angle_rad: f32, sigma_rad: f32) {
+        self.n += 1;
+        self.sum_sin += libm::sinf(angle_rad);
+        self.sum_cos += libm::cosf(angle_rad);
+        self.sum_sigma += sigma_rad;
+    }
+
+    /// With at least `min_n` angles: `Some((circular mean, 1-sigma))` if they agree (mean
+    /// resultant length >= [`CONSISTENT_RESULTANT`]); the sigma is the larger of the mean
+    /// reported sigma and the circular standard deviation. `None` otherwise.
+    fn consensus(&self, min_n: u32) -> Option<(f32, f32)> {
+        if self.n < min_n || self.n == 0 {
+            return None;
+        }
+        let n = self.n as f32;
+        let r = libm::sqrtf(self.sum_sin * self.sum_sin + self.sum_cos * self.sum_cos) / n;
+        if !(r >= CONSISTENT_RESULTANT) {
+            return None;
+        }
+        let circ_std = libm::sqrtf(-2.0 * libm::logf(r.min(1.0)));
+        Some((libm::atan2f(self.sum_sin, self.sum_cos), (self.sum_sigma / n).max(circ_std)))
+    }
+}
 
 #[derive(Debug, Clone, Copy, Default)]
 struct Align {
@@ -37,8 +101,13 @@ pub struct Estimator {
     units: [Option<UnitModel>; head::POLARIZATION_UNITS],
     align: Align,
     nav: Option<NavFilter15>,
-    /// Latest compass heading (rad, sigma) for alignment.
+    /// Compass fixes during alignment, and the heading the alignment takes from them.
+    align_fixes: AngleRun,
     yaw_fix: Option<(f32, f32)>,
+    /// Innovations of the current run of gate-rejected compass fixes.
+    rejected_run: AngleRun,
+    /// Heading resets done (re-acquisitions after a run of consistent rejected fixes).
+    pub heading_resets: u32,
     /// Low-passed specific force for the compass tilt (body FRD).
     accel_lp: [f32; 3],
     accel_seen: bool,
@@ -66,7 +135,10 @@ impl Estimator {
             units: head::polarization_units(),
             align: Align::default(),
             nav: None,
+            align_fixes: AngleRun::default(),
             yaw_fix: None,
+            rejected_run: AngleRun::default(),
+            heading_resets: 0,
             accel_lp: [0.0; 3],
             accel_seen: false,
             last_depth_m: None,
@@ -128,6 +200,8 @@ impl Estimator {
             let (yaw, yaw_sigma) = self.yaw_fix.unwrap_or((0.0, YAW_UNKNOWN_SIGMA_RAD));
             let mut cfg = self.cfg;
             cfg.init_sigma_att_rad[2] = yaw_sigma.max(cfg.init_sigma_att_rad[2]);
+            cfg.init_sigma_att_rad[0] = ALIGNED_TILT_SIGMA_RAD;
+            cfg.init_sigma_att_rad[1] = ALIGNED_TILT_SIGMA_RAD;
             // What is left of the gyro bias after the at-rest estimate: white noise over the
             // alignment plus the Earth rate, with margin.
             cfg.init_sigma_gyro_bias = ALIGNED_GYRO_BIAS_SIGMA_RADPS;
@@ -137,7 +211,10 @@ impl Estimator {
                 vel_ned_mps: Vector3::zeros(),
                 pos_ned_m: Vector3::new(0.0, 0.0, self.last_depth_m.unwrap_or(0.0)),
             };
-            self.nav = Some(NavFilter15::new(cfg, init)?);
+            let mut nav = NavFilter15::new(cfg, init)?;
+            let p = aligned_covariance(nav.covariance(), yaw, cfg.init_sigma_accel_bias, cfg.gravity_mps2);
+            nav.set_covariance(p)?;
+            self.nav = Some(nav);
         }
         Ok(())
     }
@@ -172,12 +249,47 @@ impl Estimator {
         // Too few units is reported by the solver as a NoFix reason.
         let result = compass::solve(&models, &input, &self.compass_cfg);
         if let Ok(fix) = &result {
-            self.yaw_fix = Some((fix.heading_rad, fix.sigma_heading_rad));
-            if let Some(nav) = self.nav.as_mut() {
-                let _ = nav.update_heading(t_us, fix.heading_rad, Some(fix.sigma_heading_rad));
+            let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
+            let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
+            let sigma = libm::sqrtf(fix.sigma_heading_rad * fix.sigma_heading_rad + model_var);
+            match self.nav.as_mut() {
+                None => self.align_on_fix(fix.heading_rad, sigma),
+                Some(nav) => {
+                    let yaw_before = nav.nominal().yaw_rad();
+                    match nav.update_heading(t_us, fix.heading_rad, Some(sigma)) {
+                        Ok(rep) if rep.accepted => self.rejected_run = AngleRun::default(),
+                        Ok(_) => {
+                            let innovation = subnav_shared::ukf::wrap_pi(fix.heading_rad - yaw_before);
+                            self.rejected_run.push(innovation, sigma);
+                            if let Some((mean, sigma)) = self.rejected_run.consensus(RESET_YAW_FIXES) {
+                                let yaw = nav.nominal().yaw_rad() + mean;
+                                if nav.reset_heading(yaw, sigma).is_ok() {
+                                    self.heading_resets = self.heading_resets.wrapping_add(1);
+                                }
+                                self.rejected_run = AngleRun::default();
+                            } else if self.rejected_run.n >= RESET_YAW_FIXES {
+                                // Inconsistent rejections (outliers, not a wrong heading): start over.
+                                self.rejected_run = AngleRun::default();
+                            }
+                        }
+                        Err(_) => {}
+                    }
+                }
             }
         }
         compass::report(t_us, &result)
+    }
+
+    /// A compass fix during alignment: the yaw is taken once `ALIGN_YAW_FIXES` consecutive fixes
+    /// agree; a disagreeing set starts over.
+    fn align_on_fix(&mut self, heading_rad: f32, sigma_rad: f32) {
+        self.align_fixes.push(heading_rad, sigma_rad);
+        if self.align_fixes.n >= ALIGN_YAW_FIXES {
+            self.yaw_fix = self.align_fixes.consensus(ALIGN_YAW_FIXES);
+            if self.yaw_fix.is_none() {
+                self.align_fixes = AngleRun::default();
+            }
+        }
     }
 
     pub fn on_depth(&mut self, t_us: u64, depth_m: f32) -> Result<(), NavError> {
@@ -235,6 +347,31 @@ impl Estimator {
             },
         }
     }
+}
+
+/// The covariance a static alignment leaves: levelling on the mean specific force turns the
+/// accelerometer bias `b` (body) into a tilt error that cancels it at rest. With the error model
+/// of `subnav_shared::nav::strapdown` (`dv' = dv + (Exp(phi) - I) f_n T - R dba T`, `f_n = [0, 0,
+/// -g]` at rest) cancellation means `phi x f_n = R b`, i.e. `phi_N = (R b)_E / g`,
+/// `phi_E = -(R b)_N / g`: `phi = M b` with `M = [[0, 1, 0], [-1, 0, 0], [0, 0, 0]] R / g` and
+/// `R` the yaw rotation. So `P_phi,phi += M P_b M^T`, `P_phi,b = M P_b`. Without this the filter
+/// treats tilt and bias as independent and its horizontal velocity sigma grows by g * tilt
+/// sigma per second (measured: 0.2 m/s per s), which lets every aiding update swing the
+/// unobserved horizontal velocity.
+fn aligned_covariance(p0: &SMatrix<f32, 15, 15>, yaw_rad: f32, sigma_accel_bias: f32, g: f32) -> SMatrix<f32, 15, 15> {
+    use subnav_shared::nav::state::{ATT, BA};
+    let (s, c) = (libm::sinf(yaw_rad), libm::cosf(yaw_rad));
+    let r = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+    let swap = Matrix3::new(0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let m = swap * r / g;
+    let pb = Matrix3::identity() * (sigma_accel_bias * sigma_accel_bias);
+    let mut p = *p0;
+    let att = p.fixed_view::<3, 3>(ATT, ATT) + m * pb * m.transpose();
+    p.fixed_view_mut::<3, 3>(ATT, ATT).copy_from(&att);
+    let cross = m * pb;
+    p.fixed_view_mut::<3, 3>(ATT, BA).copy_from(&cross);
+    p.fixed_view_mut::<3, 3>(BA, ATT).copy_from(&cross.transpose());
+    p
 }
 
 #[cfg(test)]

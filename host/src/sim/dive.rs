@@ -10,7 +10,7 @@ use nalgebra::{Quaternion, UnitQuaternion};
 use serde::Serialize;
 use subnav_shared::wire::{NavMode, Uplink};
 
-use super::head::{Scenario, SimHead};
+use super::head::{FIX_LEAD_S, Scenario, SimHead};
 use crate::link::LinkEvent;
 use crate::link::qemu::{QemuConfig, QemuEvent, run_with_bus};
 
@@ -22,8 +22,16 @@ pub struct DiveResult {
     /// Nav messages in `Aided` mode (the statistics below are over these).
     pub aided_messages: usize,
     pub first_aided_s: Option<f64>,
+    /// Heading statistics over the aided samples whose reported yaw 1-sigma is at most
+    /// [`HEADING_CONVERGED_SIGMA_DEG`] (before that the filter itself says it has no heading:
+    /// after an alignment without a compass fix its yaw sigma is 86 deg).
+    pub heading_converged_s: Option<f64>,
     pub heading_rmse_deg: f64,
     pub heading_max_abs_err_deg: f64,
+    /// Fraction of those samples whose heading error is within 3 reported sigma.
+    pub heading_within_3_sigma: f64,
+    /// Heading RMSE over every aided sample (including the unconverged start).
+    pub heading_rmse_all_aided_deg: f64,
     pub horizontal_rms_err_m: f64,
     pub horizontal_final_err_m: f64,
     pub depth_rmse_m: f64,
@@ -43,6 +51,9 @@ pub struct DiveResult {
     pub bus_transactions: u64,
 }
 
+/// Yaw 1-sigma (deg) below which the heading counts as converged in [`DiveResult`].
+pub const HEADING_CONVERGED_SIGMA_DEG: f64 = 5.0;
+
 fn wrap_deg(x: f64) -> f64 {
     (x + 180.0).rem_euclid(360.0) - 180.0
 }
@@ -54,21 +65,44 @@ pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Durat
     cfg.timeout = timeout;
     cfg.record = record.map(Path::to_path_buf);
     cfg.board_args = sc.board_args();
-    let traj = sc.trajectory();
     let mut msgs = Vec::new();
-    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, _| {
+    let fixes = sc.fixes();
+    let mut next_fix = 0;
+    let mut send_error = None;
+    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, down| {
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
+            // Fixes are sent FIX_LEAD_S of firmware time ahead (the firmware queues them).
+            if let Uplink::Nav(n) = &m {
+                let now_s = n.t_us as f64 * 1e-6;
+                while let Some(f) = fixes.get(next_fix).filter(|f| f.t_s - FIX_LEAD_S <= now_s) {
+                    if let Err(e) = down.send(f.command()) {
+                        send_error.get_or_insert(e);
+                    }
+                    next_fix += 1;
+                }
+            }
             msgs.push(m);
         }
     })?;
+    if let Some(e) = send_error {
+        return Err(e.context("sending a position fix to the firmware"));
+    }
+    Ok(evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions))
+}
 
+/// Error statistics of a dive's telemetry `msgs` against the scenario's truth.
+pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_frames: u64, bus_transactions: u64) -> DiveResult {
+    let traj = sc.trajectory();
     let mut r = DiveResult {
-        exit_code: outcome.exit_code,
+        exit_code,
         nav_messages: 0,
         aided_messages: 0,
         first_aided_s: None,
+        heading_converged_s: None,
         heading_rmse_deg: f64::NAN,
         heading_max_abs_err_deg: 0.0,
+        heading_within_3_sigma: f64::NAN,
+        heading_rmse_all_aided_deg: f64::NAN,
         horizontal_rms_err_m: f64::NAN,
         horizontal_final_err_m: f64::NAN,
         depth_rmse_m: f64::NAN,
@@ -79,12 +113,13 @@ pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Durat
         compass_rmse_deg: f64::NAN,
         raw_depth_rmse_m: f64::NAN,
         faults: Vec::new(),
-        corrupt_frames: outcome.link.frames_bad,
-        bus_transactions: outcome.bus_transactions,
+        corrupt_frames,
+        bus_transactions,
     };
     let (mut sh, mut sp, mut sd, mut inside) = (0.0, 0.0, 0.0, 0usize);
+    let (mut sh_conv, mut n_conv, mut h_inside) = (0.0, 0usize, 0usize);
     let (mut sc2, mut sr, mut nr) = (0.0, 0.0, 0usize);
-    for m in &msgs {
+    for m in msgs {
         match m {
             Uplink::Nav(n) => {
                 r.nav_messages += 1;
@@ -106,7 +141,16 @@ pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Durat
                 sh += eh * eh;
                 sp += en * en + ee * ee;
                 sd += ed * ed;
-                r.heading_max_abs_err_deg = r.heading_max_abs_err_deg.max(eh.abs());
+                let sigma_yaw_deg = (n.sigma_att_rad[2] as f64).to_degrees();
+                if sigma_yaw_deg <= HEADING_CONVERGED_SIGMA_DEG {
+                    r.heading_converged_s.get_or_insert(t);
+                    sh_conv += eh * eh;
+                    n_conv += 1;
+                    r.heading_max_abs_err_deg = r.heading_max_abs_err_deg.max(eh.abs());
+                    if eh.abs() <= 3.0 * sigma_yaw_deg {
+                        h_inside += 1;
+                    }
+                }
                 r.horizontal_final_err_m = (en * en + ee * ee).sqrt();
                 if en.abs() <= 3.0 * n.sigma_pos_m[0] as f64 && ee.abs() <= 3.0 * n.sigma_pos_m[1] as f64 {
                     inside += 1;
@@ -144,10 +188,14 @@ pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Durat
     }
     if r.aided_messages > 0 {
         let n = r.aided_messages as f64;
-        r.heading_rmse_deg = (sh / n).sqrt();
+        r.heading_rmse_all_aided_deg = (sh / n).sqrt();
         r.horizontal_rms_err_m = (sp / n).sqrt();
         r.depth_rmse_m = (sd / n).sqrt();
         r.within_3_sigma = inside as f64 / n;
     }
-    Ok(r)
+    if n_conv > 0 {
+        r.heading_rmse_deg = (sh_conv / n_conv as f64).sqrt();
+        r.heading_within_3_sigma = h_inside as f64 / n_conv as f64;
+    }
+    r
 }

@@ -36,6 +36,41 @@ pub struct FaultPlan {
     pub depth_nack_probability: f64,
 }
 
+/// Position fixes the host sends during the dive (an acoustic positioning system such as USBL,
+/// or a recognised map node): the truth at each fix time plus white noise of `sigma_m` on every
+/// axis, with that covariance.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FixPlan {
+    /// Interval between fixes, s; the first comes one interval after the rest period.
+    pub period_s: f64,
+    pub sigma_m: f64,
+}
+
+/// A scheduled position fix.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScheduledFix {
+    pub t_s: f64,
+    pub pos_ned_m: [f32; 3],
+    pub sigma_m: f32,
+}
+
+impl ScheduledFix {
+    /// The downlink command (covariance `sigma^2 I`).
+    pub fn command(&self) -> subnav_shared::wire::Command {
+        let v = self.sigma_m * self.sigma_m;
+        subnav_shared::wire::Command::PositionFix {
+            t_us: (self.t_s * 1e6).round() as u64,
+            pos_ned_m: self.pos_ned_m,
+            cov_ned_m2: [v, 0.0, 0.0, v, 0.0, v],
+        }
+    }
+}
+
+/// How long before its time a fix is sent (firmware time): the firmware queues a fix stamped
+/// ahead and applies it when its clock gets there, so the QEMU run stays repeatable as long as
+/// the fix arrives within this lead.
+pub const FIX_LEAD_S: f64 = 5.0;
+
 /// A dive scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Scenario {
@@ -52,6 +87,10 @@ pub struct Scenario {
     /// Scale on the IMU noise densities relative to the grade the filter is tuned for.
     pub imu_noise_scale: f64,
     pub faults: FaultPlan,
+    /// Position fixes (None: no position aiding; the horizontal position is then free-inertial
+    /// and drifts like any MEMS INS: hundreds of metres in five minutes).
+    #[serde(default)]
+    pub position_fixes: Option<FixPlan>,
 }
 
 impl Default for Scenario {
@@ -68,6 +107,7 @@ impl Default for Scenario {
             turbidity: 1.0,
             imu_noise_scale: 1.0,
             faults: FaultPlan::default(),
+            position_fixes: Some(FixPlan { period_s: 5.0, sigma_m: 2.0 }),
         }
     }
 }
@@ -84,6 +124,25 @@ impl Scenario {
             format!("lat_e7={}", (self.lat_deg * 1e7).round() as i64),
             format!("lon_e7={}", (self.lon_deg * 1e7).round() as i64),
         ]
+    }
+
+    /// The position fixes of the dive, in time order (seeded: the same for a seed).
+    pub fn fixes(&self) -> Vec<ScheduledFix> {
+        let Some(plan) = self.position_fixes.filter(|p| p.period_s > 0.0 && p.sigma_m > 0.0) else {
+            return Vec::new();
+        };
+        let traj = self.trajectory();
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x6666);
+        let n = normal(plan.sigma_m);
+        let mut out = Vec::new();
+        let mut t = self.survey.rest_s + plan.period_s;
+        while t <= self.duration_s {
+            let p = traj.at(t).pos_ned_m;
+            let pos_ned_m = [0, 1, 2].map(|k| (p[k] + n.sample(&mut rng)) as f32);
+            out.push(ScheduledFix { t_s: t, pos_ned_m, sigma_m: plan.sigma_m as f32 });
+            t += plan.period_s;
+        }
+        out
     }
 
     pub fn observer(&self) -> Observer {

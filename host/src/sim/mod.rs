@@ -3,6 +3,7 @@
 
 pub mod dive;
 pub mod head;
+pub mod sil;
 pub mod trajectory;
 
-pub use head::{FaultPlan, Scenario, SimHead};
+pub use head::{FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};

@@ -1,6 +1,10 @@
 //! Truth trajectory of a simulated dive: descent, then a lawnmower survey of straight legs joined
-//! by half-circle turns, level flight (roll = pitch = 0, depth changes by heave). Kinematics are
-//! exact for this motion: body rates `[0, 0, r]`, specific force `R_bn^T (a_n - g_n)`.
+//! by half-circle turns, level flight (roll = pitch = 0, depth changes by heave). Speed changes
+//! (start and end of the descent, start of the survey) are constant-acceleration ramps of
+//! `ramp_s`, so the IMU sees them: an instantaneous speed step is invisible to a sampled
+//! accelerometer and would make any inertial solution wrong by the step from then on.
+//! Kinematics are exact for this motion: body rates `[0, 0, r]`, specific force
+//! `R_bn^T (a_n - g_n)`.
 //! NED frame, metres from the origin; body FRD.
 
 use nalgebra::{UnitQuaternion, Vector3};
@@ -23,11 +27,27 @@ pub struct Lawnmower {
     pub heading0_rad: f64,
     /// Time at rest at the start (alignment), s.
     pub rest_s: f64,
+    /// Duration of each speed change (constant acceleration), s; 0 = instantaneous steps.
+    #[serde(default = "default_ramp_s")]
+    pub ramp_s: f64,
+}
+
+fn default_ramp_s() -> f64 {
+    4.0
 }
 
 impl Default for Lawnmower {
     fn default() -> Self {
-        Self { depth_m: 10.0, descent_mps: 0.25, speed_mps: 1.0, leg_m: 60.0, spacing_m: 20.0, heading0_rad: 0.3, rest_s: 15.0 }
+        Self {
+            depth_m: 10.0,
+            descent_mps: 0.25,
+            speed_mps: 1.0,
+            leg_m: 60.0,
+            spacing_m: 20.0,
+            heading0_rad: 0.3,
+            rest_s: 15.0,
+            ramp_s: default_ramp_s(),
+        }
     }
 }
 
@@ -46,7 +66,8 @@ pub struct Truth {
 
 pub const GRAVITY_MPS2: f64 = 9.81;
 
-/// Piecewise motion: (duration, forward speed, heave speed, yaw rate).
+/// Piecewise motion: forward speed `u + au t`, heave speed `w + aw t`, yaw rate `r` (turns
+/// only at constant speed: `au = 0` when `r != 0`).
 #[derive(Debug, Clone, Copy)]
 struct Segment {
     t0: f64,
@@ -54,6 +75,8 @@ struct Segment {
     u: f64,
     w: f64,
     r: f64,
+    au: f64,
+    aw: f64,
     // state at the segment start
     p0: Vector3<f64>,
     yaw0: f64,
@@ -66,14 +89,16 @@ pub struct Trajectory {
     pub duration_s: f64,
 }
 
-fn advance(p0: Vector3<f64>, yaw0: f64, u: f64, w: f64, r: f64, dt: f64) -> (Vector3<f64>, f64) {
+fn advance(p0: Vector3<f64>, yaw0: f64, s: &Segment, dt: f64) -> (Vector3<f64>, f64) {
+    let (u, w, r) = (s.u, s.w, s.r);
     let yaw = yaw0 + r * dt;
     let (dn, de) = if r.abs() < 1e-12 {
-        (u * dt * yaw0.cos(), u * dt * yaw0.sin())
+        let d = u * dt + 0.5 * s.au * dt * dt;
+        (d * yaw0.cos(), d * yaw0.sin())
     } else {
         (u / r * (yaw.sin() - yaw0.sin()), -u / r * (yaw.cos() - yaw0.cos()))
     };
-    (p0 + Vector3::new(dn, de, w * dt), yaw)
+    (p0 + Vector3::new(dn, de, w * dt + 0.5 * s.aw * dt * dt), yaw)
 }
 
 impl Trajectory {
@@ -82,24 +107,47 @@ impl Trajectory {
         let mut t = 0.0;
         let mut p = Vector3::zeros();
         let mut yaw = cfg.heading0_rad;
-        let mut push = |dur: f64, u: f64, w: f64, r: f64, t: &mut f64, p: &mut Vector3<f64>, yaw: &mut f64| {
-            segs.push(Segment { t0: *t, dur, u, w, r, p0: *p, yaw0: *yaw });
-            let (np, ny) = advance(*p, *yaw, u, w, r, dur);
+        let mut push = |dur: f64, (u, w, r): (f64, f64, f64), (au, aw): (f64, f64), t: &mut f64, p: &mut Vector3<f64>, yaw: &mut f64| {
+            if dur <= 0.0 {
+                return;
+            }
+            let seg = Segment { t0: *t, dur, u, w, r, au, aw, p0: *p, yaw0: *yaw };
+            let (np, ny) = advance(*p, *yaw, &seg, dur);
+            segs.push(seg);
             *t += dur;
             *p = np;
             *yaw = ny;
         };
-        push(cfg.rest_s, 0.0, 0.0, 0.0, &mut t, &mut p, &mut yaw);
+        let ramp = cfg.ramp_s.max(0.0);
+        push(cfg.rest_s, (0.0, 0.0, 0.0), (0.0, 0.0), &mut t, &mut p, &mut yaw);
         if cfg.depth_m > 0.0 && cfg.descent_mps > 0.0 {
-            push(cfg.depth_m / cfg.descent_mps, 0.0, cfg.descent_mps, 0.0, &mut t, &mut p, &mut yaw);
+            // Ramps cover half their duration's worth of depth each.
+            let ramp = ramp.min(cfg.depth_m / cfg.descent_mps);
+            let w = cfg.descent_mps;
+            if ramp > 0.0 {
+                push(ramp, (0.0, 0.0, 0.0), (0.0, w / ramp), &mut t, &mut p, &mut yaw);
+            }
+            push(cfg.depth_m / w - ramp, (0.0, w, 0.0), (0.0, 0.0), &mut t, &mut p, &mut yaw);
+            if ramp > 0.0 {
+                push(ramp, (0.0, w, 0.0), (0.0, -w / ramp), &mut t, &mut p, &mut yaw);
+            }
         }
         let radius = (cfg.spacing_m / 2.0).max(1.0);
         let turn_rate = cfg.speed_mps / radius;
+        let u = cfg.speed_mps;
+        // Accelerate along the first leg (it stays leg_m long).
+        let ramp = ramp.min(cfg.leg_m / u);
+        let mut first_leg_left = cfg.leg_m;
+        if ramp > 0.0 && u > 0.0 {
+            push(ramp, (0.0, 0.0, 0.0), (u / ramp, 0.0), &mut t, &mut p, &mut yaw);
+            first_leg_left -= 0.5 * u * ramp;
+        }
         let mut k = 0;
         while t < duration_s {
-            push(cfg.leg_m / cfg.speed_mps, cfg.speed_mps, 0.0, 0.0, &mut t, &mut p, &mut yaw);
+            let leg = if k == 0 { first_leg_left } else { cfg.leg_m };
+            push(leg / u, (u, 0.0, 0.0), (0.0, 0.0), &mut t, &mut p, &mut yaw);
             let dir = if k % 2 == 0 { 1.0 } else { -1.0 };
-            push(std::f64::consts::PI / turn_rate, cfg.speed_mps, 0.0, dir * turn_rate, &mut t, &mut p, &mut yaw);
+            push(std::f64::consts::PI / turn_rate, (u, 0.0, dir * turn_rate), (0.0, 0.0), &mut t, &mut p, &mut yaw);
             k += 1;
         }
         Trajectory { segments: segs, duration_s }
@@ -113,15 +161,18 @@ impl Trajectory {
             u: 0.0,
             w: 0.0,
             r: 0.0,
+            au: 0.0,
+            aw: 0.0,
             p0: Vector3::zeros(),
             yaw0: 0.0,
         });
         let dt = (t_s - seg.t0).clamp(0.0, seg.dur.max(0.0));
-        let (p, yaw) = advance(seg.p0, seg.yaw0, seg.u, seg.w, seg.r, dt);
-        let vel = Vector3::new(seg.u * yaw.cos(), seg.u * yaw.sin(), seg.w);
-        // a_n: centripetal only (speeds are piecewise constant; speed steps are instantaneous
-        // and not seen by the IMU, which is the usual simplification for a survey).
-        let acc = Vector3::new(-seg.u * seg.r * yaw.sin(), seg.u * seg.r * yaw.cos(), 0.0);
+        let (p, yaw) = advance(seg.p0, seg.yaw0, &seg, dt);
+        let (u, w) = (seg.u + seg.au * dt, seg.w + seg.aw * dt);
+        let vel = Vector3::new(u * yaw.cos(), u * yaw.sin(), w);
+        // a_n: tangential + centripetal + heave.
+        let (sy, cy) = yaw.sin_cos();
+        let acc = Vector3::new(seg.au * cy - u * seg.r * sy, seg.au * sy + u * seg.r * cy, seg.aw);
         let att = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
         let g = Vector3::new(0.0, 0.0, GRAVITY_MPS2);
         let f_b = att.inverse() * (acc - g);
@@ -143,7 +194,7 @@ mod tests {
 
     #[test]
     fn half_circle_turn_shifts_by_the_spacing_and_reverses_heading() {
-        let cfg = Lawnmower { rest_s: 0.0, depth_m: 0.0, heading0_rad: 0.0, ..Lawnmower::default() };
+        let cfg = Lawnmower { rest_s: 0.0, depth_m: 0.0, heading0_rad: 0.0, ramp_s: 0.0, ..Lawnmower::default() };
         let tr = Trajectory::lawnmower(&cfg, 200.0);
         let leg_t = cfg.leg_m / cfg.speed_mps;
         let turn_t = std::f64::consts::PI * (cfg.spacing_m / 2.0) / cfg.speed_mps;
@@ -170,6 +221,16 @@ mod tests {
                 assert!((f_num - s.specific_force_mps2).norm() < 1e-3, "t={t}");
             }
         }
+        // The ramps: speed and depth are continuous, and reach their targets.
+        let cfg = Lawnmower::default();
+        for k in 0..4000 {
+            let t = k as f64 * 0.05;
+            let (a, b) = (tr.at(t - 1e-6), tr.at(t + 1e-6));
+            assert!((a.vel_ned_mps - b.vel_ned_mps).norm() < 1e-4, "velocity jump at {t}");
+        }
+        let descent_end = cfg.rest_s + cfg.depth_m / cfg.descent_mps + cfg.ramp_s;
+        assert!((tr.at(descent_end).pos_ned_m.z - cfg.depth_m).abs() < 1e-9);
+        assert!((tr.at(descent_end + cfg.ramp_s).vel_ned_mps.norm() - cfg.speed_mps).abs() < 1e-9);
         let rest = tr.at(1.0);
         assert!((rest.specific_force_mps2 - Vector3::new(0.0, 0.0, -GRAVITY_MPS2)).norm() < 1e-12);
     }

@@ -46,7 +46,7 @@ const fn bits(idx: &[usize]) -> u64 {
 }
 
 impl SensorConfig {
-    fn noise<const M: usize>(&self) -> MeasNoise<f32, M> {
+    pub(crate) fn noise<const M: usize>(&self) -> MeasNoise<f32, M> {
         let mut n = MeasNoise::new(SMatrix::<f32, M, M>::identity() * (self.sigma * self.sigma))
             .with_gate(self.gate, self.gate_state_max, self.gate_release_after)
             .with_floor(self.sigma_floor * self.sigma_floor);
@@ -436,6 +436,14 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     pub(crate) fn reject_nonfinite(&mut self) -> NavError {
         self.imu_rejects = self.imu_rejects.saturating_add(1);
         NavError::NonFinite
+    }
+
+    /// Replace the error covariance (symmetrized and eigenvalue-floored by the UKF), e.g. with
+    /// the correlated covariance a static alignment leaves (tilt error against accelerometer
+    /// bias). Non-finite input is refused and counted.
+    pub fn set_covariance(&mut self, p: SMatrix<f32, N, N>) -> Result<(), NavError> {
+        self.ukf.set_p(p)?;
+        Ok(())
     }
 
     pub fn nominal(&self) -> &NominalState {

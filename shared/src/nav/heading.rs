@@ -4,12 +4,12 @@
 //! ([`AngleSpace`]), so a heading near +-pi is handled, and the attitude error enters through the
 //! rotation, not through a linearization.
 
-use nalgebra::{SVector, UnitQuaternion, Vector1};
+use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector1};
 
 use crate::ukf::{AngleSpace, UpdateReport};
 
 use super::filter::{KIND_HEADING, NavError, NavFilter};
-use super::state::{ATT, NominalState, seg, yaw_of};
+use super::state::{ATT, NominalState, VEL, seg, yaw_of};
 
 /// Predicted heading of an error sigma point.
 pub fn h_heading<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector1<f32> {
@@ -32,5 +32,58 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let z = Vector1::new(crate::ukf::wrap_pi(heading_rad));
         let r = self.ukf.update::<1, AngleSpace, _>(&z, &mut self.noise_heading, |dx| h_heading(&nom, dx));
         self.end_update(KIND_HEADING, t_us, r)
+    }
+}
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// Heading reset (re-acquisition): turn the nominal attitude and velocity about the NED down
+    /// axis so the yaw becomes `heading_rad`, rotate their error covariance with them, and make
+    /// the yaw error independent of every other state with 1-sigma `sigma_rad`. The heading
+    /// noise statistics restart from the configuration (an R adapted while every fix was being
+    /// rejected describes the wrong state, not the sensor).
+    ///
+    /// For the estimator's use when the heading gate has rejected a long run of mutually
+    /// consistent compass fixes (a wrong initial heading), like EKF2's yaw reset. The position is
+    /// left alone: it cannot be recovered from a heading.
+    pub fn reset_heading(&mut self, heading_rad: f32, sigma_rad: f32) -> Result<(), NavError> {
+        if !heading_rad.is_finite() || !(sigma_rad.is_finite() && sigma_rad > 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        self.begin_update(&[])?;
+        let delta = crate::ukf::wrap_pi(heading_rad - yaw_of(&self.nom.att_nb));
+        let rz = UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), delta);
+        let mut nom = self.nom;
+        nom.att_nb = rz * nom.att_nb;
+        nom.vel_ned_mps = rz * nom.vel_ned_mps;
+        if !nom.is_finite() {
+            return Err(NavError::NonFinite);
+        }
+        // P <- T P T^T with T = blockdiag(Rz on the attitude and velocity errors, I), then the
+        // yaw error decorrelated and set.
+        let r = rz.to_rotation_matrix().into_inner();
+        let mut t = SMatrix::<f32, N, N>::identity();
+        for blk in [ATT, VEL] {
+            if blk + 3 <= N {
+                t.fixed_view_mut::<3, 3>(blk, blk).copy_from(&r);
+            }
+        }
+        let mut p = t * self.ukf.p() * t.transpose();
+        let yaw = ATT + 2;
+        for i in 0..N {
+            for idx in [(yaw, i), (i, yaw)] {
+                if let Some(v) = p.get_mut(idx) {
+                    *v = 0.0;
+                }
+            }
+        }
+        if let Some(v) = p.get_mut((yaw, yaw)) {
+            *v = sigma_rad * sigma_rad;
+        }
+        self.ukf.set_p(p)?;
+        self.nom = nom;
+        let k0 = self.cfg.ukf.adapt.k0;
+        self.noise_heading = self.cfg.heading.noise();
+        self.noise_heading.k = k0;
+        Ok(())
     }
 }
