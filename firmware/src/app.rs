@@ -189,6 +189,16 @@ impl App {
                     Err(f) => self.fault(now_us, f, sink),
                 }
             }
+            let dark = occluded_units(&readings);
+            if dark != 0 {
+                for unit in 0..head::POLARIZATION_UNITS {
+                    if dark & (1 << unit) != 0 {
+                        let f = SensorFault { source: FaultSource::Polarization { unit: unit as u8 }, kind: FaultKind::Occluded };
+                        self.fault(now_us, f, sink);
+                    }
+                }
+                readings.retain(|(u, _)| dark & (1 << u) == 0);
+            }
             let utc = self.utc_unix_us(now_us);
             let observer = self.observer();
             let report = self.estimator.on_polarization(now_us, &readings, utc, observer);
@@ -350,6 +360,23 @@ fn covariance_is_pd(c: &[f32; 6]) -> bool {
     let m2 = xx * yy - xy * xy;
     let m3 = xx * (yy * zz - yz * yz) - xy * (xy * zz - yz * xz) + xz * (xy * yz - yy * xz);
     m1 > 0.0 && m2 > 0.0 && m3 > 0.0
+}
+
+/// Light (mean counts above the dark offset) a unit must have, as a fraction of the brightest
+/// unit's, not to count as occluded; and the brightest unit's light below which the scene is
+/// simply dark (night, deep water) and nothing is flagged. The units look in different
+/// directions, so their light differs by a factor of a few, never by 10.
+const OCCLUDED_FRACTION: f32 = 0.1;
+const MIN_LIGHT_COUNTS: f32 = 50.0;
+
+/// Bit mask of the units in `readings` that read no light while another unit does.
+fn occluded_units(readings: &[(usize, [i16; 4])]) -> u8 {
+    let light = |c: &[i16; 4]| c.iter().map(|&v| f32::from(v)).sum::<f32>() / 4.0 - head::POLARIZATION_OFFSET_COUNTS;
+    let brightest = readings.iter().map(|(_, c)| light(c)).fold(0.0f32, f32::max);
+    if brightest < MIN_LIGHT_COUNTS {
+        return 0;
+    }
+    readings.iter().filter(|(u, c)| *u < 8 && light(c) < OCCLUDED_FRACTION * brightest).fold(0u8, |m, (u, _)| m | (1 << u))
 }
 
 #[cfg(test)]
@@ -532,6 +559,16 @@ mod tests {
         let acks: Vec<CommandAck> =
             decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
         assert!(acks.contains(&CommandAck { seq: 200, result: Err(Refusal::Busy) }));
+    }
+
+    #[test]
+    fn a_dark_unit_among_lit_ones_is_occluded_but_a_dark_scene_is_not() {
+        let lit = [2000i16, 2400, 2100, 1800];
+        let dark = [300i16, 301, 299, 302];
+        assert_eq!(occluded_units(&[(0, lit), (1, dark), (2, lit), (3, lit)]), 0b0010);
+        assert_eq!(occluded_units(&[(0, dark), (1, dark), (2, dark), (3, dark)]), 0);
+        // Dimmer by a factor of 3 (another direction) is not occluded.
+        assert_eq!(occluded_units(&[(0, lit), (1, [900, 950, 880, 1000]), (3, lit)]), 0);
     }
 
     #[test]

@@ -249,35 +249,44 @@ impl Estimator {
         // Too few units is reported by the solver as a NoFix reason.
         let result = compass::solve(&models, &input, &self.compass_cfg);
         if let Ok(fix) = &result {
-            let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
-            let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
-            let sigma = libm::sqrtf(fix.sigma_heading_rad * fix.sigma_heading_rad + model_var);
-            match self.nav.as_mut() {
-                None => self.align_on_fix(fix.heading_rad, sigma),
-                Some(nav) => {
-                    let yaw_before = nav.nominal().yaw_rad();
-                    match nav.update_heading(t_us, fix.heading_rad, Some(sigma)) {
-                        Ok(rep) if rep.accepted => self.rejected_run = AngleRun::default(),
-                        Ok(_) => {
-                            let innovation = subnav_shared::ukf::wrap_pi(fix.heading_rad - yaw_before);
-                            self.rejected_run.push(innovation, sigma);
-                            if let Some((mean, sigma)) = self.rejected_run.consensus(RESET_YAW_FIXES) {
-                                let yaw = nav.nominal().yaw_rad() + mean;
-                                if nav.reset_heading(yaw, sigma).is_ok() {
-                                    self.heading_resets = self.heading_resets.wrapping_add(1);
-                                }
-                                self.rejected_run = AngleRun::default();
-                            } else if self.rejected_run.n >= RESET_YAW_FIXES {
-                                // Inconsistent rejections (outliers, not a wrong heading): start over.
-                                self.rejected_run = AngleRun::default();
-                            }
-                        }
-                        Err(_) => {}
-                    }
-                }
-            }
+            self.on_heading_fix(t_us, fix.heading_rad, fix.sigma_heading_rad);
         }
         compass::report(t_us, &result)
+    }
+
+    /// A compass heading fix (rad, with the solver's 1-sigma): alignment, filter update, and
+    /// heading re-acquisition (see the module doc).
+    pub fn on_heading_fix(&mut self, t_us: u64, heading_rad: f32, solver_sigma_rad: f32) {
+        if !(heading_rad.is_finite() && solver_sigma_rad.is_finite()) {
+            self.input_rejects = self.input_rejects.wrapping_add(1);
+            return;
+        }
+        let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
+        let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
+        let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var);
+        let Some(nav) = self.nav.as_mut() else {
+            self.align_on_fix(heading_rad, sigma);
+            return;
+        };
+        let yaw_before = nav.nominal().yaw_rad();
+        match nav.update_heading(t_us, heading_rad, Some(sigma)) {
+            Ok(rep) if rep.accepted => self.rejected_run = AngleRun::default(),
+            Ok(_) => {
+                let innovation = subnav_shared::ukf::wrap_pi(heading_rad - yaw_before);
+                self.rejected_run.push(innovation, sigma);
+                if let Some((mean, sigma)) = self.rejected_run.consensus(RESET_YAW_FIXES) {
+                    let yaw = nav.nominal().yaw_rad() + mean;
+                    if nav.reset_heading(yaw, sigma).is_ok() {
+                        self.heading_resets = self.heading_resets.wrapping_add(1);
+                    }
+                    self.rejected_run = AngleRun::default();
+                } else if self.rejected_run.n >= RESET_YAW_FIXES {
+                    // Inconsistent rejections (outliers, not a wrong heading): start over.
+                    self.rejected_run = AngleRun::default();
+                }
+            }
+            Err(_) => {}
+        }
     }
 
     /// A compass fix during alignment: the yaw is taken once `ALIGN_YAW_FIXES` consecutive fixes
@@ -420,6 +429,92 @@ mod tests {
         let s = e.solution(3000 * dt);
         assert!(s.pos_ned_m.iter().chain(s.att_nb_wxyz.iter()).all(|v| v.is_finite()));
         assert!(e.health(0).nonfinite_rejects > 0);
+    }
+
+    fn deg(d: f32) -> f32 {
+        d.to_radians()
+    }
+
+    /// Still IMU samples from `from_s` to `to_s` (200 Hz), with a compass fix every 100 ms from
+    /// `fix(t_s)` (None: no fix).
+    fn run(e: &mut Estimator, from_s: f32, to_s: f32, fix: impl Fn(f32) -> Option<f32>) {
+        let dt = 1_000_000 / u64::from(head::IMU_RATE_HZ);
+        let (a, b) = ((from_s * 1e6) as u64 / dt, (to_s * 1e6) as u64 / dt);
+        for k in a..b {
+            let t = k * dt;
+            let _ = e.on_imu(&still(t));
+            if k % 20 == 0 {
+                let _ = e.on_depth(t, 10.0);
+                if let Some(h) = fix(t as f32 * 1e-6) {
+                    e.on_heading_fix(t, h, deg(0.1));
+                }
+            }
+        }
+    }
+
+    fn yaw_deg(e: &Estimator) -> f32 {
+        let q = e.solution(0).att_nb_wxyz;
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+        q.euler_angles().2.to_degrees()
+    }
+
+    #[test]
+    fn alignment_ignores_an_isolated_fix_and_takes_a_consistent_set() {
+        let mut e = Estimator::default();
+        // One fix 133 deg off at 0.5 s, then nothing until 3 s, then consistent fixes at 17 deg.
+        run(&mut e, 0.0, 6.0, |t| {
+            if (0.45..0.55).contains(&t) {
+                Some(deg(150.0))
+            } else if t >= 3.0 {
+                Some(deg(17.0) + deg(0.2) * libm::sinf(7.0 * t))
+            } else {
+                None
+            }
+        });
+        assert!(matches!(e.mode(), NavMode::Aided), "{:?}", e.mode());
+        assert!((yaw_deg(&e) - 17.0).abs() < 1.0, "aligned on {} deg", yaw_deg(&e));
+        // The first consistent set is 5 fixes: alignment cannot have happened before 3.4 s.
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 3.35, |t| {
+            if (0.45..0.55).contains(&t) {
+                Some(deg(150.0))
+            } else if t >= 3.0 {
+                Some(deg(17.0))
+            } else {
+                None
+            }
+        });
+        assert_eq!(e.mode(), NavMode::Aligning);
+    }
+
+    #[test]
+    fn a_wrong_heading_is_reset_after_a_run_of_consistent_rejected_fixes() {
+        let mut e = Estimator::default();
+        // Align on a consistent but wrong compass (40 deg), then the compass says 160 deg.
+        run(&mut e, 0.0, 2.0, |_| Some(deg(40.0)));
+        assert!((yaw_deg(&e) - 40.0).abs() < 1.0);
+        run(&mut e, 2.0, 20.0, |_| Some(deg(40.0)));
+        let sigma_before = e.solution(0).sigma_att_rad[2];
+        assert!(sigma_before < deg(3.0), "converged on the wrong heading: {sigma_before}");
+        // 2.9 s of rejected fixes: not yet.
+        run(&mut e, 20.0, 22.9, |_| Some(deg(160.0)));
+        assert_eq!(e.heading_resets, 0);
+        assert!((yaw_deg(&e) - 40.0).abs() < 2.0, "{}", yaw_deg(&e));
+        run(&mut e, 22.9, 30.0, |_| Some(deg(160.0)));
+        assert_eq!(e.heading_resets, 1);
+        assert!((yaw_deg(&e) - 160.0).abs() < 1.0, "after the reset: {}", yaw_deg(&e));
+        let s = e.solution(0);
+        assert!(s.att_nb_wxyz.iter().chain(s.pos_ned_m.iter()).all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn inconsistent_outliers_do_not_reset_the_heading() {
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 20.0, |_| Some(deg(40.0)));
+        // Wild fixes all over the circle for 10 s: all rejected, never consistent.
+        run(&mut e, 20.0, 30.0, |t| Some(deg(40.0 + 90.0 + 180.0 * libm::sinf(13.0 * t))));
+        assert_eq!(e.heading_resets, 0);
+        assert!((yaw_deg(&e) - 40.0).abs() < 2.0, "{}", yaw_deg(&e));
     }
 
     #[test]

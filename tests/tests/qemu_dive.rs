@@ -1,49 +1,75 @@
 //! Sensors in the loop: the firmware ELF in QEMU reads the host's register-level chip models
-//! (IMU, 4 polarization ADCs, depth) for a simulated dive and navigates; its telemetry is
-//! compared with the truth. Needs `SUBNAV_FIRMWARE_QEMU_ELF` (set by `cargo xtask test`).
+//! (IMU, 4 polarization ADCs, depth) for a simulated 5-minute dive (the default scenario: rest
+//! at the surface, descent to 10 m, lawnmower survey at 1 m/s, a USBL-like position fix every
+//! 5 s with 2 m 1-sigma per axis) and navigates; its telemetry is compared with the truth.
+//! Needs `SUBNAV_FIRMWARE_QEMU_ELF` (set by `cargo xtask test`).
+//!
+//! Bounds and why (figures measured in docs/PERFORMANCE.md, "Sensor head dives"):
+//! - heading RMSE <= 1 deg once converged (reported yaw sigma <= 5 deg, within 30 s of boot):
+//!   the compass's model error is budgeted at 0.5 deg 1-sigma (firmware `estimator`), so 1 deg
+//!   is 2 sigma of what the filter is told; measured 0.19-0.26 deg. At least 95 % of the
+//!   samples within 3 reported sigma (consistency).
+//! - horizontal RMS error <= 5 m: the position fixes alone have a horizontal RMS of
+//!   2 m * sqrt(2) = 2.8 m; the filter must do no worse than that plus the inertial drift
+//!   between fixes (MEMS accelerometer bias 0.02 m/s^2: under 1 m over 5 s). Measured 2.0-3.5 m.
+//!   At least 95 % of the samples within 3 reported sigma.
+//! - depth RMSE <= 0.05 m: the pressure chain's own noise is 3-5 mm; the rest is filter lag at
+//!   the ends of the descent.
 
 use std::time::Duration;
 
-use subnav_host::sim::dive::run_dive;
+use subnav_host::sim::dive::{DiveResult, run_dive};
 use subnav_host::sim::{FaultPlan, Scenario};
 
 fn elf() -> std::path::PathBuf {
     subnav_tests::qemu_elf()
 }
 
-/// What holds today (see docs/RELIABILITY.md for the open heading problem): the run completes,
-/// the sensor chain through drivers and chip models is accurate, the compass fixes, the depth
-/// channel is aided, and nothing is NaN. Heading and horizontal-position bounds are not asserted
-/// yet: the filter's heading does not converge in this scenario (issue 5 stays open).
-#[test]
-fn dive_with_sensors_in_the_loop() {
-    let sc = Scenario { duration_s: 60.0, ..Scenario::default() };
-    let r = run_dive(&elf(), &sc, None, Duration::from_secs(600)).expect("dive");
+fn dive(sc: &Scenario) -> DiveResult {
+    let r = run_dive(&elf(), sc, None, Duration::from_secs(900)).expect("dive");
     eprintln!("{}", serde_json::to_string_pretty(&r).unwrap());
-    assert_eq!(r.exit_code, Some(0));
-    assert_eq!(r.nonfinite_values, 0);
-    assert_eq!(r.nav_messages, 601, "10 Hz for 60 s");
-    assert!(r.compass_fixes > 300, "{r:?}");
-    assert!(r.raw_depth_rmse_m < 0.02, "pressure chain (driver + chip model): {r:?}");
-    assert!(r.compass_rmse_deg < 10.0, "compass alone: {r:?}");
-    assert!(r.depth_rmse_m < 1.0, "depth-aided vertical channel: {r:?}");
+    r
 }
 
 #[test]
-fn dive_with_injected_faults_completes_and_reports_them() {
-    let faults = FaultPlan {
-        imu_nack_s: Some((20.0, 21.0)),
-        imu_stuck_axis: Some((40.0, 3)),
-        occluded_unit: Some((25.0, 35.0, 1)),
-        depth_nack_probability: 0.05,
-    };
-    let sc = Scenario { duration_s: 60.0, seed: 7, faults, ..Scenario::default() };
-    let r = run_dive(&elf(), &sc, None, Duration::from_secs(600)).expect("dive");
-    eprintln!("{}", serde_json::to_string_pretty(&r).unwrap());
+fn five_minute_dive_with_sensors_in_the_loop_meets_the_stated_bounds() {
+    let sc = Scenario::default();
+    assert_eq!(sc.duration_s, 300.0);
+    let r = dive(&sc);
     assert_eq!(r.exit_code, Some(0));
     assert_eq!(r.nonfinite_values, 0);
+    assert_eq!(r.nav_messages, 3001, "10 Hz for 300 s");
+    assert!(r.compass_fixes > 2500, "{r:?}");
+    assert!(r.raw_depth_rmse_m < 0.02, "pressure chain (driver + chip model): {r:?}");
+    assert!(r.heading_converged_s.is_some_and(|t| t <= 30.0), "heading converged at {:?}", r.heading_converged_s);
+    assert!(r.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.heading_rmse_deg);
+    assert!(r.heading_within_3_sigma >= 0.95, "heading consistency {}", r.heading_within_3_sigma);
+    assert!(r.horizontal_rms_err_m <= 5.0, "horizontal RMS {} m", r.horizontal_rms_err_m);
+    assert!(r.within_3_sigma >= 0.95, "position consistency {}", r.within_3_sigma);
+    assert!(r.depth_rmse_m <= 0.05, "depth RMSE {} m", r.depth_rmse_m);
+}
+
+/// Bus NACKs on the IMU (1 s) and 5 % of the depth reads, an occluded polarization unit (10 s)
+/// and, from 240 s on, a stuck gyro axis for the rest of the dive: the run completes, every
+/// fault is reported, and nothing is NaN.
+#[test]
+fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
+    let faults = FaultPlan {
+        imu_nack_s: Some((100.0, 101.0)),
+        imu_stuck_axis: Some((240.0, 3)),
+        occluded_unit: Some((120.0, 130.0, 1)),
+        depth_nack_probability: 0.05,
+    };
+    let sc = Scenario { seed: 7, faults, ..Scenario::default() };
+    let r = dive(&sc);
+    assert_eq!(r.exit_code, Some(0));
+    assert_eq!(r.nonfinite_values, 0);
+    assert_eq!(r.nav_messages, 3001);
     let has = |s: &str, k: &str| r.faults.iter().any(|f| f.0.starts_with(s) && f.1 == k);
     assert!(has("Imu", "BusNack"), "{:?}", r.faults);
     assert!(has("Imu", "Stuck"), "{:?}", r.faults);
     assert!(has("Depth", "BusNack"), "{:?}", r.faults);
+    assert!(has("Polarization { unit: 1 }", "Occluded"), "{:?}", r.faults);
+    // The compass went on with the other three units.
+    assert!(r.compass_fixes > 2500, "{r:?}");
 }

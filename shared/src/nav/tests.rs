@@ -227,3 +227,29 @@ fn aided_filter_converges_from_a_heading_error() {
     assert!(nav.solution().sigma_att_rad[2] < 0.01);
     assert_eq!(nav.mode(), crate::wire::messages::NavMode::Aided);
 }
+
+#[test]
+fn heading_reset_turns_attitude_and_velocity_and_decorrelates_the_yaw() {
+    let init = NavInit { vel_ned_mps: Vector3::new(1.0, 0.0, 0.0), ..level_init() };
+    let mut nav = NavFilter15::new(NavConfig::default(), init).unwrap();
+    for k in 0..200u64 {
+        nav.propagate(&imu(k * 10_000)).unwrap();
+        if k % 10 == 0 {
+            let _ = nav.update_heading(k * 10_000, 0.0, Some(0.01));
+        }
+    }
+    let target = 100f32.to_radians();
+    nav.reset_heading(target, 0.05).unwrap();
+    assert!((nav.nominal().yaw_rad() - target).abs() < 1e-4, "{}", nav.nominal().yaw_rad());
+    // The velocity turned with the attitude: (1, 0) at yaw 0 -> (cos 100, sin 100).
+    let v = nav.nominal().vel_ned_mps;
+    assert!((v.x - target.cos()).abs() < 0.02 && (v.y - target.sin()).abs() < 0.02, "{v:?}");
+    let p = nav.covariance();
+    assert!(is_pd(p));
+    assert!((p[(2, 2)] - 0.0025).abs() < 1e-6, "yaw variance {}", p[(2, 2)]);
+    assert!((0..15).filter(|&i| i != 2).all(|i| p[(2, i)] == 0.0 && p[(i, 2)] == 0.0));
+    // A fix at the new heading is now accepted; non-finite input is refused.
+    assert!(nav.update_heading(2_000_000, target + 0.01, Some(0.01)).unwrap().accepted);
+    assert_eq!(nav.reset_heading(f32::NAN, 0.1), Err(NavError::NonFinite));
+    assert_eq!(nav.reset_heading(0.0, 0.0), Err(NavError::NonFinite));
+}

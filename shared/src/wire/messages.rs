@@ -189,6 +189,9 @@ pub enum FaultKind {
     Overrun,
     /// Telemetry could not be sent (output full); `count` messages were dropped.
     TelemetryDropped,
+    /// A polarization unit reads no light while the others do (covered, fouled): left out of
+    /// the compass solution.
+    Occluded,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]

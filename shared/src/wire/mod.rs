@@ -14,7 +14,7 @@ pub const PROTOCOL_VERSION: u16 = 1;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0x621f_3403_953f_1363;
+pub const SCHEMA_FINGERPRINT: u64 = 0x8eb6_68ef_a12a_ede1;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
