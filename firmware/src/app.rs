@@ -89,7 +89,11 @@ pub struct App {
     /// their time (a host that knows a fix's time ahead, e.g. a simulator or a scheduled
     /// transponder interrogation, gets it applied at exactly that instant).
     pending_fixes: heapless::Vec<PendingFix, MAX_PENDING_FIXES>,
+    boot_us: u64,
 }
+
+/// After boot, "no data yet" from a sensor is not reported as a fault for this long (µs).
+pub const SENSOR_WARMUP_US: u64 = 200_000;
 
 /// Position fixes that can wait for their time.
 pub const MAX_PENDING_FIXES: usize = 4;
@@ -122,6 +126,7 @@ impl App {
             depth_task: Periodic::new(1_000_000 / head::DEPTH_RATE_HZ as u64),
             faults: FaultLog::new(),
             pending_fixes: heapless::Vec::new(),
+            boot_us: 0,
         }
     }
 
@@ -140,6 +145,10 @@ impl App {
     }
 
     fn fault(&mut self, t_us: u64, f: SensorFault, sink: &mut impl TelemetrySink) {
+        // No data yet right after boot (first IMU sample, ADC scan, depth conversion) is not a fault.
+        if f.kind == FaultKind::BusTimeout && t_us < self.boot_us.saturating_add(SENSOR_WARMUP_US) {
+            return;
+        }
         if let Some(count) = self.faults.record(t_us, f) {
             warn!("sensor fault at {=u64} us ({=u32} so far)", t_us, count);
             self.telemetry.send(&Uplink::Fault(Fault { t_us, source: f.source, kind: f.kind, count }), sink);
@@ -208,6 +217,7 @@ impl App {
 
     /// Send the boot message. Call once after reset, before anything else.
     pub fn boot(&mut self, now_us: u64, sink: &mut impl TelemetrySink) {
+        self.boot_us = now_us;
         let boot = boot_message(self.board, FIRMWARE_VERSION, now_us);
         info!(
             "subnav firmware {=u8}.{=u8}.{=u8} booting, protocol {=u16}",

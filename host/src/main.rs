@@ -38,6 +38,10 @@ enum Command {
     Record(cli::record::Args),
     /// Export a recording to MCAP (Foxglove) and/or CSV per message kind.
     Export(cli::export::Args),
+    /// Write a simulated dive scenario (survey, date, place, water, sensor grades, fixes, faults).
+    Sim(cli::sim::Args),
+    /// Run a dive scenario with the firmware in the loop (QEMU or native) and print error statistics.
+    Run(cli::run::Args),
     /// Mission report from a recording (+ truth): plots and a Markdown/HTML page.
     Report(cli::report::Args),
     /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
@@ -67,6 +71,8 @@ fn main() -> std::process::ExitCode {
         Command::Record(a) => cli::record::run(a, args.format),
         Command::Export(a) => cli::export::run(a, args.format),
         Command::Report(a) => cli::report::run(a, args.format),
+        Command::Sim(a) => cli::sim::run(a, args.format),
+        Command::Run(a) => cli::run::run(a, args.format),
         #[cfg(feature = "probe")]
         Command::Flash(a) => cli::flash::run(a, args.format),
         #[cfg(feature = "probe")]

@@ -18,7 +18,7 @@
 
 use std::time::Duration;
 
-use subnav_host::sim::dive::{DiveResult, run_dive};
+use subnav_host::sim::dive::{DiveOptions, DiveResult, run_dive};
 use subnav_host::sim::{FaultPlan, Scenario};
 
 fn elf() -> std::path::PathBuf {
@@ -26,7 +26,8 @@ fn elf() -> std::path::PathBuf {
 }
 
 fn dive(sc: &Scenario) -> DiveResult {
-    let r = run_dive(&elf(), sc, None, Duration::from_secs(900)).expect("dive");
+    let opts = DiveOptions { timeout: Some(Duration::from_secs(900)), ..DiveOptions::default() };
+    let r = run_dive(&elf(), sc, &opts).expect("dive");
     eprintln!("{}", serde_json::to_string_pretty(&r).unwrap());
     r
 }

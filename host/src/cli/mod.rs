@@ -15,6 +15,8 @@ pub mod print;
 pub mod qemu;
 pub mod record;
 pub mod report;
+pub mod run;
+pub mod sim;
 pub mod sun;
 
 /// `--format`: human text or one JSON object per line.

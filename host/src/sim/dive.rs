@@ -13,6 +13,7 @@ use subnav_shared::wire::{NavMode, Uplink};
 use super::head::{FIX_LEAD_S, Scenario, SimHead};
 use crate::link::LinkEvent;
 use crate::link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+use crate::record::tap::QemuRecorder;
 
 /// Error statistics of one dive.
 #[derive(Debug, Clone, Serialize)]
@@ -58,22 +59,36 @@ fn wrap_deg(x: f64) -> f64 {
     (x + 180.0).rem_euclid(360.0) - 180.0
 }
 
+/// How to run a dive.
+#[derive(Default)]
+pub struct DiveOptions<'a> {
+    /// Write a lossless recording (uplink, defmt and downlink) of the run here.
+    pub record: Option<&'a Path>,
+    /// Wall-clock limit (QEMU); default 15 minutes.
+    pub timeout: Option<Duration>,
+    /// Called with the firmware time (s) of every navigation message (progress display).
+    pub progress: Option<&'a dyn Fn(f64)>,
+}
+
 /// Run `sc` with the QEMU firmware `elf`.
-pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Duration) -> Result<DiveResult> {
+pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveResult> {
     let mut cfg = QemuConfig::new(elf);
     cfg.run_ms = Some((sc.duration_s * 1000.0) as u64);
-    cfg.timeout = timeout;
-    cfg.record = record.map(Path::to_path_buf);
+    cfg.timeout = opts.timeout.unwrap_or(Duration::from_secs(900));
     cfg.board_args = sc.board_args();
+    let recorder = opts.record.map(|p| QemuRecorder::start(&mut cfg, p)).transpose()?;
     let mut msgs = Vec::new();
     let fixes = sc.fixes();
     let mut next_fix = 0;
     let mut send_error = None;
-    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, down| {
+    let result = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, down| {
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
             // Fixes are sent FIX_LEAD_S of firmware time ahead (the firmware queues them).
             if let Uplink::Nav(n) = &m {
                 let now_s = n.t_us as f64 * 1e-6;
+                if let Some(p) = opts.progress {
+                    p(now_s);
+                }
                 while let Some(f) = fixes.get(next_fix).filter(|f| f.t_s - FIX_LEAD_S <= now_s) {
                     if let Err(e) = down.send(f.command()) {
                         send_error.get_or_insert(e);
@@ -83,11 +98,34 @@ pub fn run_dive(elf: &Path, sc: &Scenario, record: Option<&Path>, timeout: Durat
             }
             msgs.push(m);
         }
-    })?;
+    });
+    cfg.raw_tap = None;
+    if let Some(r) = recorder {
+        r.finish()?;
+    }
+    let (outcome, _) = result?;
     if let Some(e) = send_error {
         return Err(e.context("sending a position fix to the firmware"));
     }
+    if outcome.timed_out {
+        anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
+    }
     Ok(evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions))
+}
+
+/// The truth of a dive as CSV (`t_s,n_m,e_m,d_m,yaw_rad`, the format `subnav report --truth`
+/// reads), every `step_s`.
+pub fn truth_csv(sc: &Scenario, step_s: f64) -> String {
+    let traj = sc.trajectory();
+    let mut out = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
+    let n = (sc.duration_s / step_s).floor() as u64;
+    for k in 0..=n {
+        let t = k as f64 * step_s;
+        let tr = traj.at(t);
+        let yaw = (tr.yaw_rad + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+        out.push_str(&format!("{t:.3},{:.4},{:.4},{:.4},{yaw:.6}\n", tr.pos_ned_m.x, tr.pos_ned_m.y, tr.pos_ned_m.z));
+    }
+    out
 }
 
 /// Error statistics of a dive's telemetry `msgs` against the scenario's truth.

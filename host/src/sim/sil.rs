@@ -51,15 +51,18 @@ impl ByteLink for InProcessLink {
     }
 }
 
-/// Telemetry decoded as it is written.
+/// Telemetry decoded as it is written (and kept as frames, stamped with firmware time).
 struct Collect {
     dec: FrameDecoder<MAX_UPLINK_FRAME>,
     msgs: Vec<Uplink>,
     corrupt: u64,
+    now_us: u64,
+    frames: Vec<(u64, Vec<u8>)>,
 }
 
 impl TelemetrySink for Collect {
     fn write_frame(&mut self, frame: &[u8]) -> bool {
+        self.frames.push((self.now_us, frame.to_vec()));
         for &b in frame {
             match self.dec.push::<Uplink>(b) {
                 Decoded::Message(m) => self.msgs.push(m),
@@ -74,13 +77,18 @@ impl TelemetrySink for Collect {
 /// Telemetry of a native run.
 pub struct NativeRun {
     pub messages: Vec<Uplink>,
+    /// The uplink frames as the firmware wrote them, with its time (µs) of writing.
+    pub frames: Vec<(u64, Vec<u8>)>,
+    /// Downlink frames sent (position fixes), with the firmware time they were sent at.
+    pub downlink: Vec<(u64, Vec<u8>)>,
     pub corrupt_frames: u64,
     pub bus_transactions: u64,
 }
 
 /// Run the scenario natively for `sc.duration_s` and return the telemetry.
-pub fn run_native(sc: &Scenario) -> NativeRun {
-    let mut sink = Collect { dec: FrameDecoder::new(), msgs: Vec::new(), corrupt: 0 };
+pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
+    let mut sink = Collect { dec: FrameDecoder::new(), msgs: Vec::new(), corrupt: 0, now_us: 0, frames: Vec::new() };
+    let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
     app.boot(0, &mut sink);
     app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: sc.start_utc_unix_us } }, &mut sink);
@@ -107,22 +115,49 @@ pub fn run_native(sc: &Scenario) -> NativeRun {
         while let Some(f) = fixes.get(next_fix).filter(|f| f.t_s - FIX_LEAD_S <= ms as f64 * 1e-3) {
             let mut buf = [0u8; MAX_DOWNLINK_FRAME];
             if let Ok(frame) = wire::encode(&Downlink { seq, command: f.command() }, &mut buf) {
+                downlink.push((t_us, frame.to_vec()));
                 app.on_downlink_bytes(t_us, frame, &mut sink);
             }
             seq = seq.wrapping_add(1);
             next_fix += 1;
+        }
+        sink.now_us = t_us;
+        if let Some(p) = progress.filter(|_| ms % 1000 == 0) {
+            p(ms as f64 * 1e-3);
         }
         bridge.borrow_mut().set_time(t_us);
         app.sensor_tick(t_us, &mut suite, &mut sink);
         let _ = app.poll(t_us, &mut sink);
     }
     let transactions = bridge.into_inner().link_mut().transactions;
-    NativeRun { messages: sink.msgs, corrupt_frames: sink.corrupt, bus_transactions: transactions }
+    NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions }
+}
+
+impl NativeRun {
+    /// Write the run as a recording (uplink and downlink frames; the "host time" of each chunk
+    /// is the firmware time it was written at, plus `t0_unix_us`).
+    pub fn write_recording(&self, path: &std::path::Path, sc: &Scenario) -> anyhow::Result<()> {
+        use crate::record::{Meta, Stream, Writer};
+        let meta = Meta::new(format!("native software-in-the-loop, scenario seed {}", sc.seed));
+        let mut w = Writer::create(path, &meta)?;
+        let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
+        let mut down = self.downlink.iter().peekable();
+        for (t, f) in &self.frames {
+            while let Some((td, d)) = down.next_if(|(td, _)| td <= t) {
+                w.chunk(Stream::Downlink, t0 + td, d)?;
+            }
+            w.chunk(Stream::Uplink, t0 + t, f)?;
+        }
+        for (td, d) in down {
+            w.chunk(Stream::Downlink, t0 + td, d)?;
+        }
+        w.flush()
+    }
 }
 
 /// Run natively and evaluate against the truth (exit code `Some(0)`: the native run has no
 /// process to fail; a panic would unwind through the caller).
 pub fn run_dive_native(sc: &Scenario) -> DiveResult {
-    let run = run_native(sc);
+    let run = run_native(sc, None);
     evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
 }
