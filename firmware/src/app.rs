@@ -156,6 +156,7 @@ impl App {
     }
 
     /// Read the sensors that are due at `now_us` and run the estimator on them.
+    #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn sensor_tick(&mut self, now_us: u64, sensors: &mut impl SensorSuite, sink: &mut impl TelemetrySink) {
         sensors.service(now_us);
         if self.imu_task.due(now_us) {
@@ -232,6 +233,7 @@ impl App {
     }
 
     /// Feed bytes received on the downlink.
+    #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn on_downlink_bytes(&mut self, now_us: u64, bytes: &[u8], sink: &mut impl TelemetrySink) {
         for &b in bytes {
             match self.downlink.push::<Downlink>(b) {
@@ -249,6 +251,7 @@ impl App {
     }
 
     /// Run whatever tasks are due at `now_us`. Returns what the board must do next.
+    #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn poll(&mut self, now_us: u64, sink: &mut impl TelemetrySink) -> BoardRequest {
         while let Some(i) = self.pending_fixes.iter().position(|f| f.t_us <= now_us) {
             let f = self.pending_fixes.swap_remove(i);
@@ -277,6 +280,7 @@ impl App {
 
     /// Apply a command as if it came over the downlink (boards use this for a configured start:
     /// time and origin given at launch). It is acknowledged like any other.
+    #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn handle_command(&mut self, now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
         let result = self.apply(now_us, cmd.command);
         match result {

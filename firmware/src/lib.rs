@@ -10,6 +10,7 @@ pub mod app;
 pub mod bus_bridge;
 pub mod drivers;
 pub mod estimator;
+pub mod hal_bus;
 pub mod head_suite;
 pub mod log;
 pub mod sensors;

@@ -2,7 +2,13 @@
 //! - 168 MHz from an 8 MHz HSE crystal (change `HSE_HZ` for other boards);
 //! - telemetry and commands on USART2 (PA2 TX, PA3 RX) at 460800 baud;
 //! - defmt logs over RTT (probe-rs), panics through panic-probe;
-//! - time from SysTick at 1 kHz plus the sub-tick counter.
+//! - time from SysTick at 1 kHz plus the sub-tick counter;
+//! - sensors (the same drivers and `HeadSuite` as the QEMU board, only the buses differ): the
+//!   ICM-42688-P on SPI1 (PA5 SCK, PA6 MISO, PA7 MOSI, PA4 chip select, 8 MHz, mode 0), the four
+//!   ADS1115 (0x48-0x4B) and the MS5837-30BA (0x76) sharing I2C1 (PB6 SCL, PB7 SDA, 400 kHz)
+//!   through embedded-hal-bus's `RefCellDevice`, each bus wrapped in `hal_bus` so its errors
+//!   map to telemetry fault kinds;
+//! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s.
 //!
 //! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
 //! scheduled by the tick, a blocking HAL keeps the board file small, and it builds in a fraction
@@ -12,16 +18,22 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use core::cell::RefCell;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
+use embedded_hal_bus::i2c::RefCellDevice;
+use embedded_hal_bus::spi::ExclusiveDevice;
 use panic_probe as _;
 use stm32f4xx_hal::{
     pac,
     prelude::*,
     rcc::Config,
     serial::{self, Serial},
+    spi::{Mode, Phase, Polarity},
 };
+use subnav_firmware::hal_bus::{HalI2c, HalSpi};
+use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
 use subnav_shared::wire::Board;
@@ -55,6 +67,18 @@ impl Clock {
     }
 }
 
+/// Busy-wait delay on the DWT cycle counter (the SysTick is the scheduler's clock).
+#[derive(Clone, Copy)]
+struct CycleDelay;
+
+impl embedded_hal::delay::DelayNs for CycleDelay {
+    fn delay_ns(&mut self, ns: u32) {
+        let cycles = (u64::from(ns) * u64::from(CORE_HZ / 1_000_000)).div_ceil(1000);
+        let start = cortex_m::peripheral::DWT::cycle_count();
+        while u64::from(cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start)) < cycles {}
+    }
+}
+
 struct UartSink<TX>(TX);
 
 impl<TX: embedded_hal_nb::serial::Write<u8>> TelemetrySink for UartSink<TX> {
@@ -81,7 +105,12 @@ fn main() -> ! {
     core.SYST.enable_interrupt();
     core.SYST.enable_counter();
 
+    core.DCB.enable_trace();
+    core.DWT.enable_cycle_counter();
+    cortex_m_stack::repaint_stack();
+
     let gpioa = dp.GPIOA.split(&mut rcc);
+    let gpiob = dp.GPIOB.split(&mut rcc);
     let serial: Serial<pac::USART2> =
         match dp.USART2.serial((gpioa.pa2, gpioa.pa3), serial::Config::default().baudrate(460_800.bps()), &mut rcc) {
             Ok(s) => s,
@@ -94,6 +123,32 @@ fn main() -> ! {
     let mut app = App::new(Board::Stm32F405);
     defmt::info!("board stm32f405");
     app.boot(clock.now_us(), &mut sink);
+
+    // Sensors.
+    let spi = dp.SPI1.spi(
+        (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
+        Mode { polarity: Polarity::IdleLow, phase: Phase::CaptureOnFirstTransition },
+        8.MHz(),
+        &mut rcc,
+    );
+    let cs = gpioa.pa4.into_push_pull_output();
+    let Ok(imu_dev) = ExclusiveDevice::new(spi, cs, CycleDelay);
+    let i2c = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
+    let mut delay = CycleDelay;
+    let mut suite = HeadSuite::new(
+        HalSpi(imu_dev),
+        core::array::from_fn(|_| HalI2c(RefCellDevice::new(&i2c))),
+        HalI2c(RefCellDevice::new(&i2c)),
+        &mut delay,
+    );
+    defmt::info!(
+        "sensor init: imu ok {=bool}, polarization ok {=?}, depth ok {=bool}",
+        suite.init.imu.is_none(),
+        suite.init.polarization.map(|p| p.is_none()),
+        suite.init.depth.is_none()
+    );
+    let mut next_tick_us = clock.now_us();
+    let mut next_stack_report_us = 60_000_000u64;
 
     let mut window_start_us = clock.now_us();
     let mut busy_us: u64 = 0;
@@ -118,6 +173,16 @@ fn main() -> ! {
             if !bytes.is_empty() {
                 app.on_downlink_bytes(wake_us, bytes, &mut sink);
             }
+        }
+        // Sensors on the 1 ms grid (catching up without bursts after a long iteration).
+        if wake_us >= next_tick_us {
+            app.sensor_tick(wake_us, &mut suite, &mut sink);
+            next_tick_us = (next_tick_us + 1000).max(wake_us.saturating_sub(wake_us % 1000));
+        }
+        if wake_us >= next_stack_report_us {
+            let size = cortex_m_stack::stack_size();
+            defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", size.saturating_sub(cortex_m_stack::stack_painted()), size);
+            next_stack_report_us += 60_000_000;
         }
         if app.poll(wake_us, &mut sink) == BoardRequest::Reboot {
             cortex_m::peripheral::SCB::sys_reset();

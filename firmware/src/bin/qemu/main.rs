@@ -158,6 +158,8 @@ fn run_options() -> RunOptions {
 
 #[entry]
 fn main() -> ! {
+    // Paint the free stack so the peak use can be measured at the end of the run.
+    cortex_m_stack::repaint_stack();
     let mut core = cortex_m::Peripherals::take().unwrap_or_else(|| fail("core peripherals taken twice"));
     core.SYST.set_clock_source(SystClkSource::Core);
     core.SYST.set_reload(RELOAD);
@@ -237,6 +239,9 @@ fn main() -> ! {
             }
             if let Some(t) = opts.run_ms {
                 if t_us >= t * 1000 {
+                    let size = cortex_m_stack::stack_size();
+                    let peak = size.saturating_sub(cortex_m_stack::stack_painted());
+                    defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", peak, size);
                     defmt::info!("run_ms reached, exiting");
                     debug::exit(debug::EXIT_SUCCESS);
                 }
