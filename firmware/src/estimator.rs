@@ -100,7 +100,11 @@ pub struct Estimator {
     compass_cfg: compass::CompassConfig,
     units: [Option<UnitModel>; head::POLARIZATION_UNITS],
     align: Align,
+    /// The navigation filter's storage (built once, at construction: `None` only if the
+    /// configuration is invalid) and whether it is running (after the alignment). Re-used in
+    /// place by every alignment, so the M4F never holds two filters on its stack.
     nav: Option<NavFilter15>,
+    running: bool,
     /// Compass fixes during alignment, and the heading the alignment takes from them.
     align_fixes: AngleRun,
     yaw_fix: Option<(f32, f32)>,
@@ -134,7 +138,8 @@ impl Estimator {
             compass_cfg: head::compass_config(),
             units: head::polarization_units(),
             align: Align::default(),
-            nav: None,
+            nav: filter_storage(cfg),
+            running: false,
             align_fixes: AngleRun::default(),
             yaw_fix: None,
             rejected_run: AngleRun::default(),
@@ -147,13 +152,24 @@ impl Estimator {
         }
     }
 
-    /// Back to alignment (downlink `ResetFilter`).
+    /// Back to alignment (downlink `ResetFilter`), keeping the filter's storage. Every field
+    /// but the configuration, the unit models and the storage goes back to its `new` value.
     pub fn reset(&mut self) {
-        *self = Self::new(self.cfg);
+        self.align = Align::default();
+        self.running = false;
+        self.align_fixes = AngleRun::default();
+        self.yaw_fix = None;
+        self.rejected_run = AngleRun::default();
+        self.heading_resets = 0;
+        self.accel_lp = [0.0; 3];
+        self.accel_seen = false;
+        self.last_depth_m = None;
+        self.gyro_bias_align = [0.0; 3];
+        self.input_rejects = 0;
     }
 
     pub fn mode(&self) -> NavMode {
-        match &self.nav {
+        match self.nav.as_ref().filter(|_| self.running) {
             Some(n) => n.mode(),
             None if self.align.n > 0 => NavMode::Aligning,
             None => NavMode::Uninitialised,
@@ -172,7 +188,7 @@ impl Estimator {
                 *lp += a * (v - *lp);
             }
         }
-        if let Some(nav) = self.nav.as_mut() {
+        if let Some(nav) = self.nav.as_mut().filter(|_| self.running) {
             let mut c = *s;
             for (g, b) in c.gyro_radps.iter_mut().zip(self.gyro_bias_align) {
                 *g -= b;
@@ -198,9 +214,9 @@ impl Estimator {
         Ok(())
     }
 
-    /// End of the alignment: build the filter. Not inlined, so the IMU path does not carry its
-    /// frame: the filter is built by value and the frame is 26 KB on the M4F (llvm-objdump),
-    /// which sets the measured stack peak once, at the end of the alignment (PERFORMANCE.md).
+    /// End of the alignment: start the filter (re-initialised in place; building it by value
+    /// here took a 26 KB stack frame on the M4F). Not inlined, so the IMU path does not carry
+    /// its frame.
     #[inline(never)]
     fn finish_alignment(&mut self, t_us: u64) -> Result<(), NavError> {
         let n = self.align.n as f32;
@@ -221,10 +237,11 @@ impl Estimator {
             vel_ned_mps: Vector3::zeros(),
             pos_ned_m: Vector3::new(0.0, 0.0, self.last_depth_m.unwrap_or(0.0)),
         };
-        let mut nav = NavFilter15::new(cfg, init)?;
+        let Some(nav) = self.nav.as_mut() else { return Err(NavError::BadConfig) };
+        nav.reinit(cfg, init)?;
         let p = aligned_covariance(nav.covariance(), yaw, cfg.init_sigma_accel_bias, cfg.gravity_mps2);
         nav.set_covariance(p)?;
-        self.nav = Some(nav);
+        self.running = true;
         Ok(())
     }
 
@@ -273,7 +290,7 @@ impl Estimator {
         let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
         let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
         let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var);
-        let Some(nav) = self.nav.as_mut() else {
+        let Some(nav) = self.nav.as_mut().filter(|_| self.running) else {
             self.align_on_fix(heading_rad, sigma);
             return;
         };
@@ -316,21 +333,21 @@ impl Estimator {
             return Err(NavError::NonFinite);
         }
         self.last_depth_m = Some(depth_m);
-        match self.nav.as_mut() {
+        match self.nav.as_mut().filter(|_| self.running) {
             Some(nav) => nav.update_depth(t_us, depth_m, None).map(|_| ()),
             None => Ok(()),
         }
     }
 
     pub fn on_position_fix(&mut self, t_us: u64, pos_ned_m: [f32; 3], cov_ned_m2: [f32; 6]) -> Result<(), NavError> {
-        match self.nav.as_mut() {
+        match self.nav.as_mut().filter(|_| self.running) {
             Some(nav) => nav.update_position(t_us, pos_ned_m, cov_ned_m2).map(|_| ()),
             None => Err(NavError::BadTime),
         }
     }
 
     pub fn solution(&self, t_us: u64) -> NavSolution {
-        match &self.nav {
+        match self.nav.as_ref().filter(|_| self.running) {
             Some(nav) => nav.solution(),
             None => NavSolution {
                 t_us,
@@ -346,7 +363,7 @@ impl Estimator {
     }
 
     pub fn health(&self, t_us: u64) -> FilterHealth {
-        match &self.nav {
+        match self.nav.as_ref().filter(|_| self.running) {
             Some(nav) => {
                 let mut h = nav.health();
                 h.nonfinite_rejects = h.nonfinite_rejects.saturating_add(self.input_rejects);
@@ -365,6 +382,15 @@ impl Estimator {
             },
         }
     }
+}
+
+/// The filter's storage, built once at construction (not inlined: its frame is transient, at
+/// boot). `None` only for an invalid configuration (then the estimator never leaves alignment
+/// and says so through `finish_alignment`'s error).
+#[inline(never)]
+fn filter_storage(cfg: NavConfig) -> Option<NavFilter15> {
+    let level = NavInit { t_us: 0, att_nb: head::attitude(0.0, 0.0, 0.0), vel_ned_mps: Vector3::zeros(), pos_ned_m: Vector3::zeros() };
+    NavFilter15::new(cfg, level).ok()
 }
 
 /// The covariance a static alignment leaves: levelling on the mean specific force turns the
@@ -514,6 +540,19 @@ mod tests {
         assert!((yaw_deg(&e) - 160.0).abs() < 1.0, "after the reset: {}", yaw_deg(&e));
         let s = e.solution(0);
         assert!(s.att_nb_wxyz.iter().chain(s.pos_ned_m.iter()).all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn reset_goes_back_to_alignment_and_realigns_in_place() {
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 3.0, |_| Some(deg(40.0)));
+        assert_eq!(e.mode(), NavMode::Aided);
+        e.reset();
+        assert_eq!(e.mode(), NavMode::Uninitialised);
+        assert!(e.solution(0).sigma_att_rad[2].is_infinite());
+        run(&mut e, 3.0, 6.0, |_| Some(deg(-100.0)));
+        assert_eq!(e.mode(), NavMode::Aided);
+        assert!((yaw_deg(&e) + 100.0).abs() < 1.0, "{}", yaw_deg(&e));
     }
 
     #[test]

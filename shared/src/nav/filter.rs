@@ -263,6 +263,58 @@ fn group_diag<const N: usize>(d: &mut SVector<f32, N>, start: usize, v: f32) {
 impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// A filter at `init` (N must be 15 or 18).
     pub fn new(cfg: NavConfig, init: NavInit) -> Result<Self, NavError> {
+        let (nom, p0) = Self::initial(&cfg, &init)?;
+        let ukf = Ukf::new(cfg.ukf, SVector::zeros(), SMatrix::from_diagonal(&p0), Self::nominal_q(&cfg))?;
+        Ok(Self {
+            cfg,
+            ukf,
+            nom,
+            inc: Increments::zero(),
+            noise_heading: cfg.heading.noise(),
+            noise_depth: cfg.depth.noise(),
+            noise_vel: cfg.velocity.noise(),
+            noise_pos: cfg.position.noise(),
+            t_us: init.t_us,
+            last_imu_t_us: None,
+            last_aided_t_us: None,
+            nis: [0.0; 4],
+            imu_rejects: 0,
+            time_rejects: 0,
+            lambda: 1.0,
+        }
+        .with_k0(cfg.ukf.adapt.k0))
+    }
+
+    /// Re-initialise in place, exactly as [`NavFilter::new`] would build the filter (on failure
+    /// it is left unchanged). The sensor head uses this at the end of its alignment: building a
+    /// second filter by value cost 26 KB of stack on the M4F.
+    pub fn reinit(&mut self, cfg: NavConfig, init: NavInit) -> Result<(), NavError> {
+        let (nom, p0) = Self::initial(&cfg, &init)?;
+        self.ukf.reinit(cfg.ukf, SVector::zeros(), SMatrix::from_diagonal(&p0), Self::nominal_q(&cfg))?;
+        self.cfg = cfg;
+        self.nom = nom;
+        self.inc = Increments::zero();
+        self.noise_heading = cfg.heading.noise();
+        self.noise_depth = cfg.depth.noise();
+        self.noise_vel = cfg.velocity.noise();
+        self.noise_pos = cfg.position.noise();
+        let k0 = cfg.ukf.adapt.k0;
+        self.noise_heading.k = k0;
+        self.noise_depth.k = k0;
+        self.noise_vel.k = k0;
+        self.noise_pos.k = k0;
+        self.t_us = init.t_us;
+        self.last_imu_t_us = None;
+        self.last_aided_t_us = None;
+        self.nis = [0.0; 4];
+        self.imu_rejects = 0;
+        self.time_rejects = 0;
+        self.lambda = 1.0;
+        Ok(())
+    }
+
+    /// Checked nominal state and initial covariance diagonal of `init`.
+    fn initial(cfg: &NavConfig, init: &NavInit) -> Result<(NominalState, SVector<f32, N>), NavError> {
         if (N != 15 && N != 18) || !cfg.is_valid() {
             return Err(NavError::BadConfig);
         }
@@ -287,25 +339,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if N >= MARKOV + 3 {
             group_diag(&mut p0, MARKOV, cfg.markov_sigma * cfg.markov_sigma);
         }
-        let ukf = Ukf::new(cfg.ukf, SVector::zeros(), SMatrix::from_diagonal(&p0), Self::nominal_q(&cfg))?;
-        Ok(Self {
-            cfg,
-            ukf,
-            nom,
-            inc: Increments::zero(),
-            noise_heading: cfg.heading.noise(),
-            noise_depth: cfg.depth.noise(),
-            noise_vel: cfg.velocity.noise(),
-            noise_pos: cfg.position.noise(),
-            t_us: init.t_us,
-            last_imu_t_us: None,
-            last_aided_t_us: None,
-            nis: [0.0; 4],
-            imu_rejects: 0,
-            time_rejects: 0,
-            lambda: 1.0,
-        }
-        .with_k0(cfg.ukf.adapt.k0))
+        Ok((nom, p0))
     }
 
     fn with_k0(mut self, k0: u32) -> Self {

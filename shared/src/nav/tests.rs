@@ -253,3 +253,43 @@ fn heading_reset_turns_attitude_and_velocity_and_decorrelates_the_yaw() {
     assert_eq!(nav.reset_heading(f32::NAN, 0.1), Err(NavError::NonFinite));
     assert_eq!(nav.reset_heading(0.0, 0.0), Err(NavError::NonFinite));
 }
+
+#[test]
+fn reinit_in_place_equals_a_new_filter() {
+    let mut a = NavFilter15::new(NavConfig::default().adaptive(), level_init()).unwrap();
+    for k in 0..300u64 {
+        a.propagate(&imu(k * 10_000)).unwrap();
+        if k % 10 == 0 {
+            let _ = a.update_heading(k * 10_000, 0.3, Some(0.02));
+            let _ = a.update_depth(k * 10_000, 10.5, None);
+        }
+    }
+    let init = NavInit {
+        t_us: 5_000_000,
+        att_nb: UnitQuaternion::from_euler_angles(0.01, -0.02, 1.0),
+        vel_ned_mps: Vector3::new(0.5, 0.0, 0.0),
+        pos_ned_m: Vector3::new(3.0, 4.0, 12.0),
+    };
+    let cfg = NavConfig::default();
+    a.reinit(cfg, init).unwrap();
+    let mut b = NavFilter15::new(cfg, init).unwrap();
+    assert_eq!(a.nominal(), b.nominal());
+    assert_eq!(a.covariance(), b.covariance());
+    assert_eq!(a.solution(), b.solution());
+    for k in 1..200u64 {
+        let t = 5_000_000 + k * 10_000;
+        a.propagate(&imu(t)).unwrap();
+        b.propagate(&imu(t)).unwrap();
+        if k % 10 == 0 {
+            assert_eq!(a.update_depth(t, 12.2, None).unwrap(), b.update_depth(t, 12.2, None).unwrap());
+        }
+    }
+    assert_eq!(a.solution(), b.solution());
+    assert_eq!(a.covariance(), b.covariance());
+    // A bad configuration leaves the filter as it was.
+    let before = a.solution();
+    let mut bad = cfg;
+    bad.imu_rate_hz = -1.0;
+    assert_eq!(a.reinit(bad, init), Err(NavError::BadConfig));
+    assert_eq!(a.solution(), before);
+}

@@ -153,6 +153,42 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         })
     }
 
+    /// Re-initialise in place, as [`Ukf::new`] would build it (on failure the filter is left
+    /// unchanged). In place so a microcontroller does not need a second filter on its stack.
+    pub fn reinit(&mut self, cfg: UkfConfig<T>, x0: SVector<T, N>, p0: SMatrix<T, N, N>, q: SMatrix<T, N, N>) -> Result<(), UkfError> {
+        let w = SigmaWeights::<T, S>::merwe(N, cfg.alpha, cfg.beta, cfg.kappa).map_err(|_| UkfError::BadConfig)?;
+        if !cfg.adapt.is_valid() {
+            return Err(UkfError::BadConfig);
+        }
+        if !all_finite(&x0) || !all_finite(&p0) || !all_finite(&q) {
+            return Err(UkfError::NonFiniteInput);
+        }
+        let f = finalize(p0, cfg.p_floor, cfg.p_rel_floor).ok_or(UkfError::NotPositiveDefinite)?;
+        self.health = UkfHealth {
+            predicts: 0,
+            updates_accepted: 0,
+            pd_repairs: u32::from(f.repaired),
+            adapt_fallbacks: 0,
+            nonfinite_rejects: 0,
+            gate_rejects: 0,
+            fading_events: 0,
+            last_lambda: T::one(),
+        };
+        self.x = x0;
+        self.p = f.p;
+        self.l = f.l;
+        self.q = q;
+        self.q_mean = SVector::zeros();
+        self.q_k = cfg.adapt.k0;
+        self.cfg = cfg;
+        self.w = w;
+        self.spread = SMatrix::zeros();
+        self.acc_ke = SVector::zeros();
+        self.acc_keek = SMatrix::zeros();
+        self.acc_n = 0;
+        Ok(())
+    }
+
     pub fn x(&self) -> &SVector<T, N> {
         &self.x
     }
