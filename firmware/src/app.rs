@@ -169,7 +169,10 @@ impl App {
                         self.fault(now_us, SensorFault { source: FaultSource::Imu, kind: FaultKind::NonFinite }, sink);
                     }
                 }
-                Err(f) => self.fault(now_us, f, sink),
+                Err(f) => {
+                    self.fault(now_us, f, sink);
+                    self.estimator.on_imu_unavailable(now_us);
+                }
             }
         }
         if self.depth_task.due(now_us) {

@@ -47,6 +47,14 @@ const CONSISTENT_RESULTANT: f32 = 0.98;
 const HEADING_MODEL_SIGMA_RAD: f32 = 0.5 * core::f32::consts::PI / 180.0;
 const HEADING_MODEL_CORR_S: f32 = 10.0;
 
+/// Without the IMU (failed or stuck axis) the filter coasts: attitude and velocity random walks
+/// large enough for an AUV's unobserved turns and speed changes (0.05 rad/sqrt(s): 3 deg in the
+/// first second), so the compass and the fixes carry it. Coasting starts after this long
+/// without an IMU sample.
+const COAST_ATTITUDE_RW: f32 = 0.05;
+const COAST_VELOCITY_RW: f32 = 0.2;
+const COAST_AFTER_US: u64 = 20_000;
+
 /// 1-sigma of the tilt error of the levelling itself (noise of the mean specific force over
 /// `ALIGN_S`, residual motion), on top of the part the accelerometer bias explains.
 const ALIGNED_TILT_SIGMA_RAD: f32 = 1e-3;
@@ -243,6 +251,18 @@ impl Estimator {
         nav.set_covariance(p)?;
         self.running = true;
         Ok(())
+    }
+
+    /// The IMU read failed at `t_us` (bus error, stuck axis): coast the filter once the gap
+    /// exceeds `COAST_AFTER_US` (degraded mode, see `NavFilter::coast`). Not inlined: the
+    /// coast's temporaries would otherwise sit in the scheduler's frame on every tick.
+    #[inline(never)]
+    pub fn on_imu_unavailable(&mut self, t_us: u64) {
+        if let Some(nav) = self.nav.as_mut().filter(|_| self.running) {
+            if t_us.saturating_sub(nav.t_us()) >= COAST_AFTER_US {
+                let _ = nav.coast(t_us, COAST_ATTITUDE_RW, COAST_VELOCITY_RW);
+            }
+        }
     }
 
     /// Run the compass on the units that were read (`(unit index, counts)`, the others failed);

@@ -52,7 +52,8 @@ fn five_minute_dive_with_sensors_in_the_loop_meets_the_stated_bounds() {
 
 /// Bus NACKs on the IMU (1 s) and 5 % of the depth reads, an occluded polarization unit (10 s)
 /// and, from 240 s on, a stuck gyro axis for the rest of the dive: the run completes, every
-/// fault is reported, and nothing is NaN.
+/// fault is reported, nothing is NaN, and the filter (coasting on compass, depth and fixes
+/// while the IMU is out) still meets the clean dive's bounds.
 #[test]
 fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
     let faults = FaultPlan {
@@ -73,6 +74,10 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
     assert!(has("Polarization { unit: 1 }", "Occluded"), "{:?}", r.faults);
     // The compass went on with the other three units.
     assert!(r.compass_fixes > 2500, "{r:?}");
+    assert!(r.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.heading_rmse_deg);
+    assert!(r.heading_within_3_sigma >= 0.95, "heading consistency {}", r.heading_within_3_sigma);
+    assert!(r.horizontal_rms_err_m <= 5.0, "horizontal RMS {} m", r.horizontal_rms_err_m);
+    assert!(r.within_3_sigma >= 0.95, "position consistency {}", r.within_3_sigma);
 }
 
 /// Stack painting: the board reports its stack peak at the end of a run. 12 s with the sensors

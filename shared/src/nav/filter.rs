@@ -426,6 +426,45 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.inject()
     }
 
+    /// Degraded mode without the IMU (failed or stuck): advance to `t_us` at constant velocity;
+    /// the error covariance grows by the nominal process noise plus random walks of
+    /// `attitude_rw` (rad/sqrt(s)) and `velocity_rw` (m/s/sqrt(s)) per axis, so the aiding
+    /// sensors (compass, depth, fixes) carry the state instead of being gated out against a
+    /// frozen, over-confident one. The next IMU sample continues from `t_us`.
+    pub fn coast(&mut self, t_us: u64, attitude_rw: f32, velocity_rw: f32) -> Result<(), NavError> {
+        if !(attitude_rw.is_finite() && velocity_rw.is_finite() && attitude_rw >= 0.0 && velocity_rw >= 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        self.cov_predict()?;
+        if t_us <= self.t_us {
+            return Ok(());
+        }
+        let dt = (t_us - self.t_us) as f32 * 1e-6;
+        let mut nom = self.nom;
+        nom.pos_ned_m += nom.vel_ned_mps * dt;
+        if !nom.is_finite() {
+            return Err(NavError::NonFinite);
+        }
+        let mut inc = Increments::zero();
+        inc.dt_s = dt;
+        let decay = libm::expf(-dt / self.cfg.markov_tau_s);
+        self.ukf.predict(dt / self.cfg.cov_dt_s(), |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        let mut p = *self.ukf.p();
+        for k in 0..3 {
+            if let Some(v) = p.get_mut((ATT + k, ATT + k)) {
+                *v += attitude_rw * attitude_rw * dt;
+            }
+            if let Some(v) = p.get_mut((VEL + k, VEL + k)) {
+                *v += velocity_rw * velocity_rw * dt;
+            }
+        }
+        self.ukf.set_p(p)?;
+        self.nom = nom;
+        self.t_us = t_us;
+        self.last_imu_t_us = Some(t_us);
+        self.inject()
+    }
+
     /// Fold the error mean into the nominal state and reset it.
     pub(crate) fn inject(&mut self) -> Result<(), NavError> {
         let dx = *self.ukf.x();

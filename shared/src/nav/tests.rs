@@ -293,3 +293,34 @@ fn reinit_in_place_equals_a_new_filter() {
     assert_eq!(a.reinit(bad, init), Err(NavError::BadConfig));
     assert_eq!(a.solution(), before);
 }
+
+#[test]
+fn coasting_without_the_imu_grows_the_covariance_and_lets_the_compass_in() {
+    let init = NavInit { vel_ned_mps: Vector3::new(1.0, 0.0, 0.0), ..level_init() };
+    let mut nav = NavFilter15::new(NavConfig::default(), init).unwrap();
+    for k in 0..100u64 {
+        let mut s = imu(k * 10_000);
+        s.accel_mps2 = [0.0, 0.0, -9.81];
+        nav.propagate(&s).unwrap();
+        if k % 10 == 0 {
+            nav.update_heading(k * 10_000, 0.0, Some(0.002)).unwrap();
+        }
+    }
+    let sigma_yaw = nav.solution().sigma_att_rad[2];
+    // The IMU is gone; 2 s later the vehicle has turned 5 deg.
+    let t = 990_000 + 2_000_000;
+    nav.coast(t, 0.05, 0.2).unwrap();
+    assert_eq!(nav.t_us(), t);
+    let s = nav.solution();
+    assert!(s.sigma_att_rad[2] > 0.06, "yaw sigma {} after 2 s of coasting (was {sigma_yaw})", s.sigma_att_rad[2]);
+    assert!((s.pos_ned_m[0] - 3.0).abs() < 0.1, "constant velocity: {:?}", s.pos_ned_m);
+    assert!(is_pd(nav.covariance()));
+    let rep = nav.update_heading(t, 5f32.to_radians(), Some(0.01)).unwrap();
+    assert!(rep.accepted, "nis {}", rep.nis);
+    assert!(nav.nominal().yaw_rad() > 4f32.to_radians(), "{}", nav.nominal().yaw_rad());
+    // The IMU comes back: propagation continues from the coasted time.
+    let mut back = imu(t + 5_000);
+    back.accel_mps2 = [0.0, 0.0, -9.81];
+    assert!(nav.propagate(&back).is_ok());
+    assert_eq!(nav.coast(t, f32::NAN, 0.2), Err(NavError::NonFinite));
+}
