@@ -9,6 +9,7 @@ pub mod export;
 pub mod fgo;
 pub mod filter;
 pub mod link;
+pub mod lmnn;
 pub mod record;
 pub mod report;
 pub mod sim;
