@@ -10,6 +10,7 @@ pub mod fgo;
 pub mod filter;
 pub mod link;
 pub mod lmnn;
+pub mod polar_image;
 pub mod record;
 pub mod report;
 pub mod sim;
