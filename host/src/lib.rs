@@ -14,3 +14,4 @@ pub mod polar_image;
 pub mod record;
 pub mod report;
 pub mod sim;
+pub mod topo;

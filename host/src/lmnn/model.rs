@@ -98,7 +98,7 @@ impl LmnnModel {
             bail!("model: k = {} with {} training samples", self.k, self.train_labels.len());
         }
         let finite = self.l.iter().flatten().chain(self.scaler.mean.iter()).chain(self.scaler.scale.iter()).all(|v| v.is_finite());
-        if !finite || self.scaler.scale.iter().any(|s| *s == 0.0) {
+        if !finite || self.scaler.scale.contains(&0.0) {
             bail!("model: non-finite or zero values in L or the scaler");
         }
         Ok(())

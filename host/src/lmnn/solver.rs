@@ -239,7 +239,7 @@ pub fn fit(x: &DMatrix<f64>, y: &[i64], cfg: &LmnnConfig) -> Result<(DMatrix<f64
         return Err(LmnnError::NonFinite { row: idx % n, col: idx / n });
     }
     if cfg.k == 0
-        || !(cfg.learn_rate > 0.0)
+        || cfg.learn_rate.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
         || !(0.0..=1.0).contains(&cfg.regularization)
         || cfg.max_iter < 2
         || !(cfg.active_set_eps >= 0.0 && cfg.active_set_eps < 1.0)
@@ -273,7 +273,7 @@ pub fn fit(x: &DMatrix<f64>, y: &[i64], cfg: &LmnnConfig) -> Result<(DMatrix<f64
             evals += 1;
             let delta = next.objective - cur.objective;
             // `!(delta <= 0)` also rejects a NaN objective; the rate cannot underflow forever.
-            if !(delta <= 0.0) && lr > f64::MIN_POSITIVE {
+            if (delta.is_nan() || delta > 0.0) && lr > f64::MIN_POSITIVE {
                 lr /= 2.0;
             } else {
                 break (l_next, next, delta);
