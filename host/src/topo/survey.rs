@@ -178,12 +178,52 @@ fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
 }
 
-/// Run a survey. Runs on its own thread with a large stack (the filter state is ~84 x 84 and
-/// the UKF keeps its sigma points on the stack). `progress` is called with the fraction done.
+/// Run a simulated survey. Runs on its own thread with a large stack (the filter state is
+/// 84 x 84 and the UKF keeps its sigma points on the stack). `progress` gets the fraction done.
 pub fn run(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyhow::Result<SurveyResult> {
+    big_stack(|| run_inner(cfg, progress))
+}
+
+fn big_stack<T: Send>(f: impl FnOnce() -> anyhow::Result<T> + Send) -> anyhow::Result<T> {
     std::thread::scope(|s| {
-        let h = std::thread::Builder::new().stack_size(64 << 20).spawn_scoped(s, || run_inner(cfg, progress))?;
-        h.join().map_err(|_| anyhow::anyhow!("survey thread panicked"))?
+        let h = std::thread::Builder::new().stack_size(64 << 20).spawn_scoped(s, f)?;
+        h.join().map_err(|_| anyhow::anyhow!("mapping thread panicked"))?
+    })
+}
+
+/// One camera frame for the mapper.
+#[derive(Debug, Clone, Copy)]
+pub struct Frame {
+    pub t_s: f64,
+    /// Dead-reckoned displacement since the previous frame (N, E), m.
+    pub dx_m: [f64; 2],
+    /// Image features (`None` or non-finite: no usable image at this frame).
+    pub features: Option<[f64; N_FEATURES]>,
+    /// Truth (simulations), for the evaluation only.
+    pub truth_ned_m: Option<[f64; 2]>,
+}
+
+/// Build a map from recorded frames (e.g. a recording's navigation solutions and an images
+/// directory); the figures that need truth stay zero.
+pub fn build(
+    cfg: &SurveyConfig,
+    start_ned_m: [f64; 2],
+    frames: &[Frame],
+    progress: &mut (dyn FnMut(f64) + Send),
+) -> anyhow::Result<SurveyResult> {
+    big_stack(|| {
+        anyhow::ensure!(cfg.samples_per_node > 3, "samples_per_node must exceed the LMNN k = 3");
+        let duration = frames.last().map_or(0.0, |f| f.t_s) - frames.first().map_or(0.0, |f| f.t_s);
+        let mut m = Mapper::new(cfg, start_ned_m, duration, f64::INFINITY)?;
+        let t0 = frames.first().map_or(0.0, |f| f.t_s);
+        for (i, fr) in frames.iter().enumerate() {
+            m.step(&Frame { t_s: fr.t_s - t0, ..*fr })?;
+            if i % 20 == 0 {
+                progress(i as f64 / frames.len().max(1) as f64);
+            }
+        }
+        progress(1.0);
+        Ok(m.finish())
     })
 }
 
@@ -197,94 +237,156 @@ fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyh
     let duration = cfg.laps * cfg.track.perimeter_m() / cfg.track.speed_mps;
     let frames = (duration / cfg.frame_dt_s).floor() as usize;
     let lap_s = cfg.track.perimeter_m() / cfg.track.speed_mps;
-
-    let (p0, _) = cfg.track.at(0.0);
-    let mut filt = SlamFilter::new(p0, cfg.tuning).map_err(|e| anyhow::anyhow!("filter init: {e:?}"))?;
-    let mut dr = p0;
-    let mut map = TopoMap::default();
     let speed_n = Normal::new(0.0, cfg.speed_noise_mps.max(0.0))?;
     let head_n = Normal::new(0.0, cfg.heading_noise_rad.max(0.0))?;
-    let fix_r = cfg.fix_sigma_m.powi(2);
-
-    let mut track = Vec::with_capacity(frames);
-    let mut fixes = Vec::new();
-    let mut fix_frames = Vec::new();
-    let mut collecting: Option<usize> = None; // node id
-    let mut since_event_m = f64::INFINITY; // travel since the last node event
-    let mut last_node: Option<usize> = None;
-    let mut trained = false;
-    let mut next_id = 0usize;
-    let mut last_fix_t: Vec<f64> = Vec::new(); // by node id
-    // Features of the last frames: a new node's samples are centred on its creation point.
-    let mut recent: std::collections::VecDeque<[f64; N_FEATURES]> = std::collections::VecDeque::new();
-    let mut rep = SurveyReport {
-        duration_s: duration,
-        nodes: 0,
-        nodes_created: 0,
-        merges: 0,
-        keyframes_after_training: 0,
-        recognitions: 0,
-        correct_recognitions: 0,
-        opportunities: 0,
-        recalled_opportunities: 0,
-        precision: 0.0,
-        recall: 0.0,
-        appearance_matches: 0,
-        appearance_correct: 0,
-        fixes: 0,
-        final_drift_slam_m: 0.0,
-        final_drift_dr_m: 0.0,
-        max_drift_last_lap_slam_m: 0.0,
-        max_drift_last_lap_dr_m: 0.0,
-        estimated_current_mps: [0.0; 2],
-        match_threshold: 0.0,
-        map_full_events: 0,
-        pd_repairs: 0,
-        fading_events: 0,
-    };
-
+    let (p0, _) = cfg.track.at(0.0);
+    let mut m = Mapper::new(cfg, p0, duration, duration - lap_s)?;
     for k in 1..=frames {
         let t = k as f64 * cfg.frame_dt_s;
         let (truth, yaw) = cfg.track.at(t);
         // Odometry: water-relative velocity (misses the current), compass heading with bias.
-        let (truth_prev, yaw_prev) = cfg.track.at(t - cfg.frame_dt_s);
+        let (truth_prev, _) = cfg.track.at(t - cfg.frame_dt_s);
         let ground = [truth[0] - truth_prev[0], truth[1] - truth_prev[1]];
         let water_rel = [ground[0] - cfg.current_mps[0] * cfg.frame_dt_s, ground[1] - cfg.current_mps[1] * cfg.frame_dt_s];
         let v = (water_rel[0].powi(2) + water_rel[1].powi(2)).sqrt() / cfg.frame_dt_s + speed_n.sample(&mut rng);
         let course = water_rel[1].atan2(water_rel[0]) + cfg.heading_bias_rad + head_n.sample(&mut rng);
-        let _ = yaw_prev;
         let dx = [v * cfg.frame_dt_s * course.cos(), v * cfg.frame_dt_s * course.sin()];
-        dr = [dr[0] + dx[0], dr[1] + dx[1]];
-        filt.predict(dx, cfg.frame_dt_s).map_err(|e| anyhow::anyhow!("predict: {e:?}"))?;
-        since_event_m += v * cfg.frame_dt_s;
-
         // Image and features at the true pose.
         let mosaic = scene.render(truth[0], truth[1], yaw, &mut rng);
         let f: [f64; N_FEATURES] = features(&stokes(&demosaic(&mosaic)));
-        if f.iter().any(|x| !x.is_finite()) {
-            continue; // a bad image is skipped, not fed to the map
+        m.step(&Frame { t_s: t, dx_m: dx, features: Some(f), truth_ned_m: Some(truth) })?;
+        if k % 20 == 0 {
+            progress(k as f64 / frames as f64);
         }
+    }
+    progress(1.0);
+    Ok(m.finish())
+}
+
+/// The online mapper: filter, map and the bookkeeping of node creation and recognition.
+struct Mapper<'a> {
+    cfg: &'a SurveyConfig,
+    filt: SlamFilter,
+    dr: [f64; 2],
+    map: TopoMap,
+    fix_r: f64,
+    track: Vec<TrackPoint>,
+    fixes: Vec<Downlink>,
+    fix_frames: Vec<Vec<u8>>,
+    collecting: Option<usize>,
+    since_event_m: f64,
+    last_node: Option<usize>,
+    trained: bool,
+    next_id: usize,
+    last_fix_t: Vec<f64>,
+    recent: std::collections::VecDeque<[f64; N_FEATURES]>,
+    rep: SurveyReport,
+    k: usize,
+    last_lap_after_s: f64,
+}
+
+impl<'a> Mapper<'a> {
+    fn new(cfg: &'a SurveyConfig, p0: [f64; 2], duration: f64, last_lap_after_s: f64) -> anyhow::Result<Self> {
+        let filt = SlamFilter::new(p0, cfg.tuning).map_err(|e| anyhow::anyhow!("filter init: {e:?}"))?;
+        Ok(Mapper {
+            cfg,
+            filt,
+            dr: p0,
+            map: TopoMap::default(),
+            fix_r: cfg.fix_sigma_m.powi(2),
+            track: Vec::new(),
+            fixes: Vec::new(),
+            fix_frames: Vec::new(),
+            collecting: None,
+            since_event_m: f64::INFINITY,
+            last_node: None,
+            trained: false,
+            next_id: 0,
+            last_fix_t: Vec::new(),
+            recent: std::collections::VecDeque::new(),
+            rep: SurveyReport {
+                duration_s: duration,
+                nodes: 0,
+                nodes_created: 0,
+                merges: 0,
+                keyframes_after_training: 0,
+                recognitions: 0,
+                correct_recognitions: 0,
+                opportunities: 0,
+                recalled_opportunities: 0,
+                precision: 0.0,
+                recall: 0.0,
+                appearance_matches: 0,
+                appearance_correct: 0,
+                fixes: 0,
+                final_drift_slam_m: 0.0,
+                final_drift_dr_m: 0.0,
+                max_drift_last_lap_slam_m: 0.0,
+                max_drift_last_lap_dr_m: 0.0,
+                estimated_current_mps: [0.0; 2],
+                match_threshold: 0.0,
+                map_full_events: 0,
+                pd_repairs: 0,
+                fading_events: 0,
+            },
+            k: 0,
+            last_lap_after_s,
+        })
+    }
+
+    fn step(&mut self, fr: &Frame) -> anyhow::Result<()> {
+        let cfg = self.cfg;
+        self.k += 1;
+        let k = self.k;
+        let t = fr.t_s;
+        let dx = fr.dx_m;
+        anyhow::ensure!(dx.iter().all(|v| v.is_finite()) && t.is_finite(), "frame at t = {t} s: non-finite time or displacement");
+        self.dr = [self.dr[0] + dx[0], self.dr[1] + dx[1]];
+        let dt = self.track.last().map_or(cfg.frame_dt_s, |p| (t - p.t_s).max(1e-3));
+        self.filt.predict(dx, dt).map_err(|e| anyhow::anyhow!("predict: {e:?}"))?;
+        self.since_event_m += (dx[0] * dx[0] + dx[1] * dx[1]).sqrt();
+        let truth_opt = fr.truth_ned_m;
+        if let Some(f) = fr.features.filter(|f| f.iter().all(|x| x.is_finite())) {
+            self.image_step(t, k, f, truth_opt)?;
+        }
+        let slam = self.filt.position();
+        let truth = truth_opt.unwrap_or([f64::NAN; 2]);
+        self.track.push(TrackPoint { t_s: t, truth_ned_m: truth, slam_ned_m: slam, dr_ned_m: self.dr });
+        if truth_opt.is_some() && t > self.last_lap_after_s {
+            self.rep.max_drift_last_lap_slam_m = self.rep.max_drift_last_lap_slam_m.max(dist(slam, truth));
+            self.rep.max_drift_last_lap_dr_m = self.rep.max_drift_last_lap_dr_m.max(dist(self.dr, truth));
+        }
+        Ok(())
+    }
+
+    fn image_step(&mut self, t: f64, k: usize, f: [f64; N_FEATURES], truth_opt: Option<[f64; 2]>) -> anyhow::Result<()> {
+        let cfg = self.cfg;
+        let fix_r = self.fix_r;
+        let truth = truth_opt.unwrap_or([f64::NAN; 2]);
+        let Mapper {
+            filt, map, rep, collecting, since_event_m, last_node, trained, next_id, last_fix_t, recent, fixes, fix_frames, ..
+        } = self;
 
         let back = cfg.samples_per_node.saturating_sub(1) / 2;
         recent.push_back(f);
         while recent.len() > back + 1 {
             recent.pop_front();
         }
-        if let Some(id) = collecting {
+        if let Some(id) = *collecting {
             if let Some(n) = map.node_mut(id) {
                 n.samples.push(f);
                 if n.samples.len() >= cfg.samples_per_node {
-                    collecting = None;
+                    *collecting = None;
                 }
             } else {
-                collecting = None;
+                *collecting = None;
             }
         }
 
-        if !trained && t >= cfg.train_after_s && collecting.is_none() {
+        if !*trained && t >= cfg.train_after_s && collecting.is_none() {
             map.train(&LmnnConfig::default(), cfg.threshold_factor)?;
             rep.match_threshold = map.match_threshold;
-            trained = true;
+            *trained = true;
             // Merge adjacent too-similar nodes (first-lap closure duplicates).
             let ids: Vec<usize> = map.nodes.iter().map(|n| n.id).collect();
             for &b in ids.iter().rev() {
@@ -328,30 +430,31 @@ fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyh
         }
 
         let mut event = false;
-        if trained && k % cfg.keyframe_every == 0 && collecting.is_none() {
+        if *trained && k % cfg.keyframe_every == 0 && collecting.is_none() {
             rep.keyframes_after_training += 1;
             let cands = map.candidates(&f);
             let is_correct =
                 |id: usize, map: &TopoMap| map.node(id).and_then(|n| n.truth_ned_m).is_some_and(|p| dist(p, truth) < cfg.correct_radius_m);
             if let Some(c) = cands.first().filter(|c| c.dist < map.match_threshold) {
                 rep.appearance_matches += 1;
-                rep.appearance_correct += is_correct(c.node, &map) as usize;
+                rep.appearance_correct += is_correct(c.node, map) as usize;
             }
             let chosen = cands.iter().take_while(|c| c.dist < map.match_threshold).find(|c| {
                 !cfg.position_gate || map.node(c.node).and_then(|n| filt.mahalanobis2(n.slot, fix_r)).is_some_and(|d2| d2 < CHI2_2_99)
             });
-            let opportunity = map.nodes.iter().any(|n| n.truth_ned_m.is_some_and(|p| dist(p, truth) < cfg.opportunity_radius_m));
+            let opportunity =
+                truth_opt.is_some() && map.nodes.iter().any(|n| n.truth_ned_m.is_some_and(|p| dist(p, truth) < cfg.opportunity_radius_m));
             rep.opportunities += opportunity as usize;
             if let Some(c) = chosen {
                 rep.recognitions += 1;
-                let ok = is_correct(c.node, &map);
+                let ok = is_correct(c.node, map);
                 rep.correct_recognitions += ok as usize;
                 rep.recalled_opportunities += (ok && opportunity) as usize;
                 event = true;
-                if let Some(prev) = last_node {
+                if let Some(prev) = *last_node {
                     map.add_edge(prev, c.node);
                 }
-                last_node = Some(c.node);
+                *last_node = Some(c.node);
                 let slot = map.node(c.node).map(|n| n.slot);
                 let due = last_fix_t.get(c.node).is_none_or(|&lt| t - lt >= cfg.refractory_s);
                 if let (Some(slot), true) = (slot, due) {
@@ -373,13 +476,13 @@ fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyh
             }
         }
         if event {
-            since_event_m = 0.0;
+            *since_event_m = 0.0;
         }
-        if since_event_m >= cfg.node_spacing_m && collecting.is_none() {
+        if *since_event_m >= cfg.node_spacing_m && collecting.is_none() {
             match filt.add_node() {
                 Some(slot) => {
-                    let id = next_id;
-                    next_id += 1;
+                    let id = *next_id;
+                    *next_id += 1;
                     last_fix_t.push(f64::NEG_INFINITY);
                     map.nodes.push(Node {
                         id,
@@ -388,52 +491,47 @@ fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyh
                         samples: recent.iter().copied().collect(),
                         pos_ned_m: filt.position(),
                         cov_m2: [0.0; 3],
-                        truth_ned_m: Some(truth),
+                        truth_ned_m: truth_opt,
                         observations: 0,
                         merged: Vec::new(),
                     });
-                    if let Some(prev) = last_node {
+                    if let Some(prev) = *last_node {
                         map.add_edge(prev, id);
                     }
-                    last_node = Some(id);
-                    collecting = Some(id);
+                    *last_node = Some(id);
+                    *collecting = Some(id);
                     rep.nodes_created += 1;
                 }
                 None => rep.map_full_events += 1,
             }
-            since_event_m = 0.0;
+            *since_event_m = 0.0;
         }
 
-        let slam = filt.position();
-        track.push(TrackPoint { t_s: t, truth_ned_m: truth, slam_ned_m: slam, dr_ned_m: dr });
-        if t > duration - lap_s {
-            rep.max_drift_last_lap_slam_m = rep.max_drift_last_lap_slam_m.max(dist(slam, truth));
-            rep.max_drift_last_lap_dr_m = rep.max_drift_last_lap_dr_m.max(dist(dr, truth));
-        }
-        if k % 20 == 0 {
-            progress(k as f64 / frames as f64);
-        }
+        Ok(())
     }
-    for n in map.nodes.iter_mut() {
-        if let Some(p) = filt.node_position(n.slot) {
-            n.pos_ned_m = p;
-            let c = filt.node_cov(n.slot);
-            n.cov_m2 = [c[(0, 0)], c[(0, 1)], c[(1, 1)]];
+
+    fn finish(self) -> SurveyResult {
+        let Mapper { filt, mut map, mut rep, track, fixes, fix_frames, .. } = self;
+        for n in map.nodes.iter_mut() {
+            if let Some(p) = filt.node_position(n.slot) {
+                n.pos_ned_m = p;
+                let c = filt.node_cov(n.slot);
+                n.cov_m2 = [c[(0, 0)], c[(0, 1)], c[(1, 1)]];
+            }
         }
+        let last = track.last().copied();
+        rep.nodes = map.nodes.len();
+        rep.fixes = fixes.len();
+        rep.precision = if rep.recognitions > 0 { rep.correct_recognitions as f64 / rep.recognitions as f64 } else { 0.0 };
+        rep.recall = if rep.opportunities > 0 { rep.recalled_opportunities as f64 / rep.opportunities as f64 } else { 0.0 };
+        if let Some(l) = last.filter(|l| l.truth_ned_m[0].is_finite()) {
+            rep.final_drift_slam_m = dist(l.slam_ned_m, l.truth_ned_m);
+            rep.final_drift_dr_m = dist(l.dr_ned_m, l.truth_ned_m);
+        }
+        rep.estimated_current_mps = filt.current();
+        let h = filt.health();
+        rep.pd_repairs = h.pd_repairs;
+        rep.fading_events = h.fading_events;
+        SurveyResult { report: rep, map, track, fixes, fix_frames }
     }
-    let last = track.last().copied();
-    rep.nodes = map.nodes.len();
-    rep.fixes = fixes.len();
-    rep.precision = if rep.recognitions > 0 { rep.correct_recognitions as f64 / rep.recognitions as f64 } else { 0.0 };
-    rep.recall = if rep.opportunities > 0 { rep.recalled_opportunities as f64 / rep.opportunities as f64 } else { 0.0 };
-    if let Some(l) = last {
-        rep.final_drift_slam_m = dist(l.slam_ned_m, l.truth_ned_m);
-        rep.final_drift_dr_m = dist(l.dr_ned_m, l.truth_ned_m);
-    }
-    rep.estimated_current_mps = filt.current();
-    let h = filt.health();
-    rep.pd_repairs = h.pd_repairs;
-    rep.fading_events = h.fading_events;
-    progress(1.0);
-    Ok(SurveyResult { report: rep, map, track, fixes, fix_frames })
 }
