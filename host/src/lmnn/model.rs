@@ -48,8 +48,8 @@ pub struct LmnnModel {
     pub scaler: Scaler,
     /// `L`, row-major d x d.
     pub l: Vec<Vec<f64>>,
-    /// Training samples mapped by the scaler and `L` (row per sample), and their labels.
-    pub train_mapped: Vec<Vec<f64>>,
+    /// Standardised training samples (row per sample) and their labels.
+    pub train_std: Vec<Vec<f64>>,
     pub train_labels: Vec<i64>,
     pub report: Option<FitReport>,
 }
@@ -60,12 +60,11 @@ impl LmnnModel {
         let scaler = Scaler::fit(x);
         let xs = scaler.transform(x);
         let (l, report) = fit(&xs, y, cfg)?;
-        let mapped = &xs * l.transpose();
         Ok(LmnnModel {
             k: cfg.k,
             scaler,
             l: l.row_iter().map(|r| r.iter().cloned().collect()).collect(),
-            train_mapped: mapped.row_iter().map(|r| r.iter().cloned().collect()).collect(),
+            train_std: xs.row_iter().map(|r| r.iter().cloned().collect()).collect(),
             train_labels: y.to_vec(),
             report: Some(report),
         })
@@ -91,7 +90,7 @@ impl LmnnModel {
         if d == 0 || self.scaler.scale.len() != d || self.l.len() != d || self.l.iter().any(|r| r.len() != d) {
             bail!("model: L and the scaler must be {d} x {d} and {d} long");
         }
-        if self.train_mapped.len() != self.train_labels.len() || self.train_mapped.iter().any(|r| r.len() != d) {
+        if self.train_std.len() != self.train_labels.len() || self.train_std.iter().any(|r| r.len() != d) {
             bail!("model: training samples and labels do not match");
         }
         if self.k == 0 || self.k > self.train_labels.len() {
@@ -104,12 +103,20 @@ impl LmnnModel {
         Ok(())
     }
 
-    /// kNN labels of raw samples.
+    /// The standardised training samples as a matrix.
+    pub fn train_matrix(&self) -> DMatrix<f64> {
+        DMatrix::from_fn(self.train_std.len(), self.dim(), |r, c| self.train_std[r][c])
+    }
+
+    /// kNN labels of raw samples in the learned metric.
     pub fn predict(&self, x: &DMatrix<f64>) -> Vec<i64> {
-        let t = self.train_mapped.len();
-        let d = self.dim();
-        let train = DMatrix::from_fn(t, d, |r, c| self.train_mapped[r][c]);
-        knn::predict(&train, &self.train_labels, &self.map(x), self.k)
+        let lt = self.l_matrix().transpose();
+        knn::predict(&(self.train_matrix() * &lt), &self.train_labels, &self.map(x), self.k)
+    }
+
+    /// kNN labels of raw samples in the Euclidean metric of the standardised features.
+    pub fn predict_euclidean(&self, x: &DMatrix<f64>) -> Vec<i64> {
+        knn::predict(&self.train_matrix(), &self.train_labels, &self.scaler.transform(x), self.k)
     }
 
     pub fn save(&self, path: &Path) -> Result<()> {

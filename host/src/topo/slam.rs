@@ -3,7 +3,7 @@
 //! ([`subnav_shared::ukf::Ukf`], f64 on the host).
 //!
 //! State `[p_N, p_E, c_N, c_E, n_1N, n_1E, ..., n_KN, n_KE]`, `K = MAX_NODES` fixed at compile time
-//! (the shared UKF is const-generic and heap-free; 40 nodes = 84 states, 169 sigma points). A
+//! (the shared UKF is const-generic and heap-free; 30 nodes = 64 states, 129 sigma points). A
 //! free node slot holds 0 with a large, uncorrelated variance, so it does not influence the
 //! others; adding a node writes its slot (the vehicle position, with the vehicle's covariance
 //! row plus a small placement variance), a merge applies a "same place" update between two
@@ -21,12 +21,14 @@ use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 use subnav_shared::ukf::{AdaptConfig, MeasNoise, Ukf, UkfConfig, UkfError, UpdateReport};
 use subnav_shared::wire::{Command, Downlink};
 
-/// Node capacity of the filter state.
-pub const MAX_NODES: usize = 40;
+/// Node capacity of the filter state: 30 makes 64 states, the width of the shared UKF's
+/// per-measurement fading mask (`u64`), so every state can be addressed by it.
+pub const MAX_NODES: usize = 30;
 /// State size: position (2), current (2), nodes (2 each).
 pub const NX: usize = 4 + 2 * MAX_NODES;
 /// Sigma points.
 pub const NS: usize = 2 * NX + 1;
+const _: () = assert!(NX <= 64, "the shared UKF's fading mask is a u64");
 /// Variance of a free node slot (m^2).
 const FREE_VAR: f64 = 1e4;
 /// Chi-square 99 % for 2 degrees of freedom.
@@ -198,7 +200,8 @@ impl SlamFilter {
         let (a, b) = (node_idx(keep), node_idx(drop));
         let mut noise = MeasNoise::<f64, 2>::new(Matrix2::identity() * r_m2);
         noise.adapt = false;
-        noise.fading_mask = 1 << a | 1 << (a + 1) | 1 << b | 1 << (b + 1);
+        // NX <= 64 (see MAX_NODES), so every node state has a bit in the mask.
+        noise.fading_mask = 1u64 << a | 1u64 << (a + 1) | 1u64 << b | 1u64 << (b + 1);
         self.ukf.update::<2, subnav_shared::ukf::Euclidean, _>(&Vector2::zeros(), &mut noise, |x| {
             Vector2::new(x[a] - x[b], x[a + 1] - x[b + 1])
         })?;

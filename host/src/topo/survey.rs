@@ -179,9 +179,19 @@ fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
 }
 
 /// Run a simulated survey. Runs on its own thread with a large stack (the filter state is
-/// 84 x 84 and the UKF keeps its sigma points on the stack). `progress` gets the fraction done.
+/// 64 x 64 and the UKF keeps its sigma points on the stack). `progress` gets the fraction done.
 pub fn run(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyhow::Result<SurveyResult> {
-    big_stack(|| run_inner(cfg, progress))
+    big_stack(|| run_inner(cfg, progress, &mut |_, _, _| Ok(())))
+}
+
+/// [`run`], also handing every frame's mosaic and dead-reckoned position (N, E) to `sink`
+/// (e.g. to write an images directory and a navigation log).
+pub fn run_with_frames(
+    cfg: &SurveyConfig,
+    progress: &mut (dyn FnMut(f64) + Send),
+    sink: &mut (dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send),
+) -> anyhow::Result<SurveyResult> {
+    big_stack(|| run_inner(cfg, progress, sink))
 }
 
 fn big_stack<T: Send>(f: impl FnOnce() -> anyhow::Result<T> + Send) -> anyhow::Result<T> {
@@ -227,7 +237,11 @@ pub fn build(
     })
 }
 
-fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyhow::Result<SurveyResult> {
+fn run_inner(
+    cfg: &SurveyConfig,
+    progress: &mut (dyn FnMut(f64) + Send),
+    sink: &mut (dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send),
+) -> anyhow::Result<SurveyResult> {
     anyhow::ensure!(cfg.frame_dt_s > 0.0 && cfg.laps > 0.0 && cfg.keyframe_every > 0, "bad survey timing");
     anyhow::ensure!(cfg.samples_per_node > 3, "samples_per_node must exceed the LMNN k = 3");
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
@@ -255,6 +269,7 @@ fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyh
         let mosaic = scene.render(truth[0], truth[1], yaw, &mut rng);
         let f: [f64; N_FEATURES] = features(&stokes(&demosaic(&mosaic)));
         m.step(&Frame { t_s: t, dx_m: dx, features: Some(f), truth_ned_m: Some(truth) })?;
+        sink(t, &mosaic, m.dr)?;
         if k % 20 == 0 {
             progress(k as f64 / frames as f64);
         }
