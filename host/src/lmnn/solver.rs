@@ -23,7 +23,7 @@ pub struct LmnnConfig {
 
 impl Default for LmnnConfig {
     fn default() -> Self {
-        Self { k: 3, min_iter: 50, max_iter: 1000, learn_rate: 1e-7, regularization: 0.5, convergence_tol: 1e-3, active_set_eps: 0.05 }
+        Self { k: 3, min_iter: 50, max_iter: 1000, learn_rate: 1e-7, regularization: 0.5, convergence_tol: 1e-3, active_set_eps: 0.2 }
     }
 }
 
@@ -80,6 +80,7 @@ pub struct FitReport {
 /// Data laid out for the solver: `xt` is `d x n` (one sample per column, contiguous).
 struct Problem {
     xt: DMatrix<f64>,
+    x: DMatrix<f64>,
     labels: Vec<usize>,
     /// `targets[i * k + t]`.
     targets: Vec<usize>,
@@ -90,11 +91,12 @@ struct Problem {
 }
 
 /// Candidate impostor pairs `(a, b)`, `a < b`, different labels, valid while
-/// `||L - l_ref||_F * inv_norm <= eps`.
+/// `||(L - l_ref) l_ref^-1||_F <= eps` (an upper bound of the spectral norm: then
+/// `| ||L v|| - ||l_ref v|| | <= eps ||l_ref v||` for every `v`).
 struct ActiveSet {
     pairs: Vec<(u32, u32)>,
     l_ref: DMatrix<f64>,
-    inv_norm: f64,
+    l_ref_inv: Option<DMatrix<f64>>,
     eps: f64,
 }
 
@@ -104,9 +106,16 @@ struct Eval {
     active: usize,
 }
 
+/// Squared distance between columns `a` and `b` (column-major storage: contiguous slices).
 fn sq_dist_cols(m: &DMatrix<f64>, a: usize, b: usize) -> f64 {
-    let (ca, cb) = (m.column(a), m.column(b));
-    ca.iter().zip(cb.iter()).map(|(x, y)| (x - y) * (x - y)).sum()
+    let d = m.nrows();
+    let s = m.as_slice();
+    let (ca, cb) = (&s[a * d..(a + 1) * d], &s[b * d..(b + 1) * d]);
+    let mut acc = 0.0;
+    for (x, y) in ca.iter().zip(cb) {
+        acc += (x - y) * (x - y);
+    }
+    acc
 }
 
 /// Squared distances between all columns of `m` (n x n), via the Gram matrix.
@@ -118,17 +127,35 @@ fn pairwise_sq(m: &DMatrix<f64>) -> DMatrix<f64> {
 }
 
 /// Weighted sum of outer products `sum w (x_a - x_b)(x_a - x_b)^T` as `X Lap X^T`.
-fn sum_outer(xt: &DMatrix<f64>, edges: &[(usize, usize, f64)]) -> DMatrix<f64> {
+/// `xt` is `d x n`, `x` the same data `n x d`.
+fn sum_outer(xt: &DMatrix<f64>, x_nd: &DMatrix<f64>, edges: &[(usize, usize, f64)]) -> DMatrix<f64> {
     let d = xt.nrows();
-    let mut y = DMatrix::<f64>::zeros(d, xt.ncols());
+    let n = xt.ncols();
+    // Laplacian: degree (diagonal) and off-diagonal weights, then Y = X Lap column by column.
+    let mut deg = vec![0.0; n];
     for &(a, b, w) in edges {
-        for r in 0..d {
-            let v = w * (xt[(r, a)] - xt[(r, b)]);
-            y[(r, a)] += v;
-            y[(r, b)] -= v;
+        deg[a] += w;
+        deg[b] += w;
+    }
+    let x = xt.as_slice();
+    let mut y = DMatrix::<f64>::zeros(d, n);
+    {
+        let ys = y.as_mut_slice();
+        for (i, &g) in deg.iter().enumerate() {
+            if g != 0.0 {
+                for r in 0..d {
+                    ys[i * d + r] = g * x[i * d + r];
+                }
+            }
+        }
+        for &(a, b, w) in edges {
+            for r in 0..d {
+                ys[a * d + r] -= w * x[b * d + r];
+                ys[b * d + r] -= w * x[a * d + r];
+            }
         }
     }
-    &y * xt.transpose()
+    y * x_nd
 }
 
 impl Problem {
@@ -149,8 +176,8 @@ impl Problem {
         }
         let edges: Vec<(usize, usize, f64)> =
             (0..n).flat_map(|i| (0..k).map(move |t| (i, t))).map(|(i, t)| (i, targets[i * k + t], 1.0)).collect();
-        let pull = sum_outer(&xt, &edges);
-        Problem { xt, labels: labels.to_vec(), targets, k, reg, pull }
+        let pull = sum_outer(&xt, x, &edges);
+        Problem { xt, x: x.clone(), labels: labels.to_vec(), targets, k, reg, pull }
     }
 
     /// Max target distance per sample under `lx`.
@@ -162,13 +189,8 @@ impl Problem {
         let n = self.xt.ncols();
         let k = self.k;
         let far: Vec<f64> = (0..n).map(|i| tdist[i * k..(i + 1) * k].iter().cloned().fold(0.0, f64::max)).collect();
-        let inv_norm = l
-            .clone()
-            .try_inverse()
-            .map(|inv| inv.singular_values().iter().cloned().fold(0.0, f64::max))
-            .filter(|v| v.is_finite())
-            .unwrap_or(f64::INFINITY);
-        let eps = if inv_norm.is_finite() { eps } else { 0.0 };
+        let l_ref_inv = l.clone().try_inverse().filter(|m| m.iter().all(|v| v.is_finite()));
+        let eps = if l_ref_inv.is_some() { eps } else { 0.0 };
         let (lo, hi) = ((1.0 - eps).powi(2), (1.0 + eps).powi(2));
         let d2 = pairwise_sq(lx);
         let mut pairs = Vec::new();
@@ -179,14 +201,14 @@ impl Problem {
                 }
             }
         }
-        ActiveSet { pairs, l_ref: l.clone(), inv_norm, eps }
+        ActiveSet { pairs, l_ref: l.clone(), l_ref_inv, eps }
     }
 
     fn eval(&self, l: &DMatrix<f64>, set: &mut Option<ActiveSet>, eps_budget: f64, scans: &mut usize) -> Eval {
         let lx = l * &self.xt;
         let k = self.k;
         let tdist = self.target_dists(&lx);
-        let valid = set.as_ref().is_some_and(|s| (l - &s.l_ref).norm() * s.inv_norm <= s.eps);
+        let valid = set.as_ref().is_some_and(|s| s.l_ref_inv.as_ref().is_some_and(|inv| ((l - &s.l_ref) * inv).norm() <= s.eps));
         if !valid {
             *set = Some(self.build_active_set(l, &lx, &tdist, eps_budget));
             *scans += 1;
@@ -212,7 +234,7 @@ impl Problem {
                 }
             }
         }
-        let push = sum_outer(&self.xt, &edges);
+        let push = sum_outer(&self.xt, &self.x, &edges);
         let g = &self.pull * self.reg + push * (1.0 - self.reg);
         let lg = l * g;
         let objective = active as f64 * (1.0 - self.reg) + lg.dot(l);
