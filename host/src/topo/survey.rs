@@ -184,13 +184,12 @@ pub fn run(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyhow
     big_stack(|| run_inner(cfg, progress, &mut |_, _, _| Ok(())))
 }
 
+/// Receives each simulated frame: time (s), mosaic, dead-reckoned position (N, E).
+pub type FrameSink = dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send;
+
 /// [`run`], also handing every frame's mosaic and dead-reckoned position (N, E) to `sink`
 /// (e.g. to write an images directory and a navigation log).
-pub fn run_with_frames(
-    cfg: &SurveyConfig,
-    progress: &mut (dyn FnMut(f64) + Send),
-    sink: &mut (dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send),
-) -> anyhow::Result<SurveyResult> {
+pub fn run_with_frames(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send), sink: &mut FrameSink) -> anyhow::Result<SurveyResult> {
     big_stack(|| run_inner(cfg, progress, sink))
 }
 
@@ -237,11 +236,7 @@ pub fn build(
     })
 }
 
-fn run_inner(
-    cfg: &SurveyConfig,
-    progress: &mut (dyn FnMut(f64) + Send),
-    sink: &mut (dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send),
-) -> anyhow::Result<SurveyResult> {
+fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send), sink: &mut FrameSink) -> anyhow::Result<SurveyResult> {
     anyhow::ensure!(cfg.frame_dt_s > 0.0 && cfg.laps > 0.0 && cfg.keyframe_every > 0, "bad survey timing");
     anyhow::ensure!(cfg.samples_per_node > 3, "samples_per_node must exceed the LMNN k = 3");
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
