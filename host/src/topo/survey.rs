@@ -185,7 +185,7 @@ pub fn run(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send)) -> anyhow
 }
 
 /// Receives each simulated frame: time (s), mosaic, dead-reckoned position (N, E).
-pub type FrameSink = dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send;
+pub type FrameSink<'a> = dyn FnMut(f64, &crate::polar_image::Mosaic, [f64; 2]) -> anyhow::Result<()> + Send + 'a;
 
 /// [`run`], also handing every frame's mosaic and dead-reckoned position (N, E) to `sink`
 /// (e.g. to write an images directory and a navigation log).
