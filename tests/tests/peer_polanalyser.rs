@@ -72,3 +72,14 @@ fn synthetic_field_matches_polanalyser() {
     });
     compare(&m, "synthetic");
 }
+
+#[test]
+fn rendered_seafloor_matches_polanalyser() {
+    use subnav_host::topo::scene::{Scene, SceneConfig, coastal_water};
+    use subnav_shared::ukf::nalgebra::Vector3;
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+    let (el, az) = (50f64.to_radians(), 150f64.to_radians());
+    let sun = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), -el.sin());
+    let scene = Scene::new(SceneConfig { size_px: 64, ..SceneConfig::default() }, coastal_water(), sun, 10.0, &mut rng);
+    compare(&scene.render(12.0, 3.0, 0.7, &mut rng), "seafloor");
+}
