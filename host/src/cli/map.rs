@@ -4,9 +4,9 @@
 //!   precision/recall and the drift with loop-closure fixes vs dead reckoning; writes the map
 //!   (JSON, GraphML), a plot of the graph over the trajectory, the position fixes as downlink
 //!   frames, and optionally the mosaics (`--images`, `<t_us>.png`) with a navigation log
-//!   (`nav.csv`: dead-reckoned `t_s,north_m,east_m`) that `build` reads.
+//!   (`nav.csv`: dead-reckoned `t_s,north_m,east_m,down_m`) that `build` reads.
 //! - `build`: the same mapper on real data: a navigation source (a subnav recording, whose
-//!   navigation solutions are used, or a CSV `t_s,north_m,east_m`) and a directory of 8/16-bit
+//!   navigation solutions are used, or a CSV `t_s,north_m,east_m[,down_m]`) and a directory of 8/16-bit
 //!   IMX250MZR mosaics named by sensor-head time in microseconds (`<t_us>.png`).
 //!
 //! Outputs in `--out-dir`: `map.json`, `map.graphml`, `map.png`, `fixes.bin` (COBS frames of
@@ -125,15 +125,15 @@ fn print_report(res: &SurveyResult, format: Format, with_truth: bool) {
     }
 }
 
-/// Navigation positions (t_s, north, east), sorted by time.
-fn read_nav(path: &Path) -> Result<Vec<(f64, [f64; 2])>> {
+/// Navigation positions (t_s, [north, east, down]), sorted by time; down is NaN when unknown.
+fn read_nav(path: &Path) -> Result<Vec<(f64, [f64; 3])>> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let mut out = Vec::new();
     if crate::record::is_recording(&bytes) {
         let loaded = crate::record::reader::read_bytes(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let session = crate::record::session::Session::decode(&loaded, None);
         let data = crate::report::ReportData::from_session(&session, None);
-        out.extend(data.nav.iter().map(|n| (n.t_s, [n.pos_ned_m[0], n.pos_ned_m[1]])));
+        out.extend(data.nav.iter().map(|n| (n.t_s, n.pos_ned_m)));
     } else {
         let text = String::from_utf8(bytes).with_context(|| format!("{} is neither a recording nor a text CSV", path.display()))?;
         for (i, line) in text.lines().enumerate() {
@@ -146,10 +146,10 @@ fn read_nav(path: &Path) -> Result<Vec<(f64, [f64; 2])>> {
                 .map(|c| c.trim().parse::<f64>())
                 .collect::<Result<_, _>>()
                 .with_context(|| format!("{} line {}", path.display(), i + 1))?;
-            if v.len() < 3 || v.iter().any(|x| !x.is_finite()) {
-                bail!("{} line {}: expected t_s,north_m,east_m", path.display(), i + 1);
+            if v.len() < 3 || v.len() > 4 || v.iter().any(|x| !x.is_finite()) {
+                bail!("{} line {}: expected t_s,north_m,east_m[,down_m]", path.display(), i + 1);
             }
-            out.push((v[0], [v[1], v[2]]));
+            out.push((v[0], [v[1], v[2], v.get(3).copied().unwrap_or(f64::NAN)]));
         }
     }
     out.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -159,7 +159,7 @@ fn read_nav(path: &Path) -> Result<Vec<(f64, [f64; 2])>> {
     Ok(out)
 }
 
-fn nav_at(nav: &[(f64, [f64; 2])], t: f64) -> [f64; 2] {
+fn nav_at(nav: &[(f64, [f64; 3])], t: f64) -> [f64; 3] {
     let i = nav.partition_point(|p| p.0 < t);
     if i == 0 {
         return nav[0].1;
@@ -169,12 +169,12 @@ fn nav_at(nav: &[(f64, [f64; 2])], t: f64) -> [f64; 2] {
     }
     let (a, b) = (nav[i - 1], nav[i]);
     let u = if b.0 > a.0 { (t - a.0) / (b.0 - a.0) } else { 0.0 };
-    [a.1[0] + u * (b.1[0] - a.1[0]), a.1[1] + u * (b.1[1] - a.1[1])]
+    [0, 1, 2].map(|k| a.1[k] + u * (b.1[k] - a.1[k]))
 }
 
 /// Frames from a navigation log and a directory of `<t_us>.png` mosaics. Unreadable images are
 /// reported and skipped (their frame still carries the displacement).
-fn frames_from_dir(nav: &[(f64, [f64; 2])], dir: &Path, warn: &mut dyn FnMut(String)) -> Result<(Vec<Frame>, [f64; 2])> {
+fn frames_from_dir(nav: &[(f64, [f64; 3])], dir: &Path, warn: &mut dyn FnMut(String)) -> Result<(Vec<Frame>, [f64; 2])> {
     let mut imgs: Vec<(u64, PathBuf)> = Vec::new();
     for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
         let p = e?.path();
@@ -203,10 +203,11 @@ fn frames_from_dir(nav: &[(f64, [f64; 2])], dir: &Path, warn: &mut dyn FnMut(Str
                 None
             }
         };
-        frames.push(Frame { t_s: t, dx_m: [pos[0] - prev[0], pos[1] - prev[1]], features: f, truth_ned_m: None });
+        let depth_m = pos[2].is_finite().then_some(pos[2]);
+        frames.push(Frame { t_s: t, dx_m: [pos[0] - prev[0], pos[1] - prev[1]], features: f, truth_ned_m: None, depth_m });
         prev = pos;
     }
-    Ok((frames, start))
+    Ok((frames, [start[0], start[1]]))
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
@@ -217,14 +218,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             let cfg = SurveyConfig { laps, seed, position_gate: !no_gate, ..SurveyConfig::default() };
             let pb = bar(quiet, "survey");
-            let mut nav_csv = String::from("t_s,north_m,east_m\n");
+            let mut nav_csv = String::from("t_s,north_m,east_m,down_m\n");
+            let depth = cfg.track.depth_m;
             if let Some(d) = &images {
                 std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
             }
             let res = survey::run_with_frames(&cfg, &mut |f| pb.set_position((f * 1000.0) as u64), &mut |t, m, dr| {
                 if let Some(d) = &images {
                     m.write_png(&d.join(format!("{}.png", (t * 1e6).round() as u64)))?;
-                    nav_csv.push_str(&format!("{t},{},{}\n", dr[0], dr[1]));
+                    nav_csv.push_str(&format!("{t},{},{},{depth}\n", dr[0], dr[1]));
                 }
                 Ok(())
             })?;

@@ -210,6 +210,8 @@ pub struct Frame {
     pub features: Option<[f64; N_FEATURES]>,
     /// Truth (simulations), for the evaluation only.
     pub truth_ned_m: Option<[f64; 2]>,
+    /// Depth (m) for the position fixes; `None`: the survey depth of the configuration.
+    pub depth_m: Option<f64>,
 }
 
 /// Build a map from recorded frames (e.g. a recording's navigation solutions and an images
@@ -223,8 +225,10 @@ pub fn build(
     big_stack(|| {
         anyhow::ensure!(cfg.samples_per_node > 3, "samples_per_node must exceed the LMNN k = 3");
         let duration = frames.last().map_or(0.0, |f| f.t_s) - frames.first().map_or(0.0, |f| f.t_s);
-        let mut m = Mapper::new(cfg, start_ned_m, duration, f64::INFINITY)?;
         let t0 = frames.first().map_or(0.0, |f| f.t_s);
+        let mut m = Mapper::new(cfg, start_ned_m, duration, f64::INFINITY)?;
+        // Times inside the mapper are relative to the first frame; fixes carry sensor-head time.
+        m.t_offset_s = t0;
         for (i, fr) in frames.iter().enumerate() {
             m.step(&Frame { t_s: fr.t_s - t0, ..*fr })?;
             if i % 20 == 0 {
@@ -263,7 +267,7 @@ fn run_inner(cfg: &SurveyConfig, progress: &mut (dyn FnMut(f64) + Send), sink: &
         // Image and features at the true pose.
         let mosaic = scene.render(truth[0], truth[1], yaw, &mut rng);
         let f: [f64; N_FEATURES] = features(&stokes(&demosaic(&mosaic)));
-        m.step(&Frame { t_s: t, dx_m: dx, features: Some(f), truth_ned_m: Some(truth) })?;
+        m.step(&Frame { t_s: t, dx_m: dx, features: Some(f), truth_ned_m: Some(truth), depth_m: Some(cfg.track.depth_m) })?;
         sink(t, &mosaic, m.dr)?;
         if k % 20 == 0 {
             progress(k as f64 / frames as f64);
@@ -293,6 +297,8 @@ struct Mapper<'a> {
     rep: SurveyReport,
     k: usize,
     last_lap_after_s: f64,
+    t_offset_s: f64,
+    depth_m: f64,
 }
 
 impl<'a> Mapper<'a> {
@@ -341,6 +347,8 @@ impl<'a> Mapper<'a> {
             },
             k: 0,
             last_lap_after_s,
+            t_offset_s: 0.0,
+            depth_m: cfg.track.depth_m,
         })
     }
 
@@ -356,6 +364,9 @@ impl<'a> Mapper<'a> {
         self.filt.predict(dx, dt).map_err(|e| anyhow::anyhow!("predict: {e:?}"))?;
         self.since_event_m += (dx[0] * dx[0] + dx[1] * dx[1]).sqrt();
         let truth_opt = fr.truth_ned_m;
+        if let Some(d) = fr.depth_m.filter(|d| d.is_finite()) {
+            self.depth_m = d;
+        }
         if let Some(f) = fr.features.filter(|f| f.iter().all(|x| x.is_finite())) {
             self.image_step(t, k, f, truth_opt)?;
         }
@@ -373,6 +384,8 @@ impl<'a> Mapper<'a> {
         let cfg = self.cfg;
         let fix_r = self.fix_r;
         let truth = truth_opt.unwrap_or([f64::NAN; 2]);
+        let t_fix_us = ((t + self.t_offset_s).max(0.0) * 1e6).round() as u64;
+        let depth_m = self.depth_m;
         let Mapper {
             filt, map, rep, collecting, since_event_m, last_node, trained, next_id, last_fix_t, recent, fixes, fix_frames, ..
         } = self;
@@ -475,7 +488,7 @@ impl<'a> Mapper<'a> {
                         if let Some(n) = map.node_mut(c.node) {
                             n.observations += 1;
                         }
-                        let fix = filt.position_fix((t * 1e6) as u64, cfg.track.depth_m, 0.01);
+                        let fix = filt.position_fix(t_fix_us, depth_m, 0.01);
                         let mut buf = [0u8; subnav_shared::wire::MAX_DOWNLINK_FRAME];
                         if let Ok(frame) = subnav_shared::wire::encode(&fix, &mut buf) {
                             fix_frames.push(frame.to_vec());
