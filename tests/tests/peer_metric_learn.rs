@@ -4,11 +4,12 @@
 //! test part. The Rust side fits on exactly the same splits.
 //!
 //! - CI: iris and wine, all 10 seeds, side by side: mean accuracy within 1 point of metric-learn's.
-//! - CI: digits, seed 0, Rust only (metric-learn needs ~10 min per digits fit on our CI machine):
+//! - CI: digits, seed 0, Rust only (metric-learn took 2-10 min per digits fit on our shared machine):
 //!   LMNN must beat the Euclidean 3-NN on the same split and stay within 1 point of the
 //!   issue's metric-learn mean (98.3 %).
-//! - Full digits comparison (both sides, ~10 min of metric-learn per seed):
-//!   `SUBNAV_PEER_PYTHON=target/peers-venv/bin/python SUBNAV_LMNN_SEEDS=0,1 cargo test --release -p subnav-tests --test peer_metric_learn -- --ignored --nocapture`
+//! - Digits side by side (`SUBNAV_LMNN_SEEDS`, default all 10 seeds; minutes of metric-learn per
+//!   seed), plus the two tests above, in release:
+//!   `SUBNAV_LMNN_SEEDS=0,1 SUBNAV_PEER_PYTHON=target/peers-venv/bin/python CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_CODEGEN_UNITS=16 CARGO_PROFILE_RELEASE_OPT_LEVEL=3 cargo test --release -p subnav-tests --test peer_metric_learn -- --include-ignored --nocapture --test-threads 1`
 //!   Results are recorded in docs/PERFORMANCE.md.
 
 use std::process::Command;
