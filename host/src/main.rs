@@ -44,6 +44,10 @@ enum Command {
     Run(cli::run::Args),
     /// Mission report from a recording (+ truth): plots and a Markdown/HTML page.
     Report(cli::report::Args),
+    /// LMNN metric learning on labelled CSV samples (fit a model, evaluate kNN accuracy).
+    Lmnn(cli::lmnn::Args),
+    /// Topological map from polarization images with AUKF-SLAM loop closures (simulated survey or recorded data).
+    Map(cli::map::Args),
     /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
     #[cfg(feature = "probe")]
     Flash(cli::flash::Args),
@@ -73,6 +77,8 @@ fn main() -> std::process::ExitCode {
         Command::Report(a) => cli::report::run(a, args.format),
         Command::Sim(a) => cli::sim::run(a, args.format),
         Command::Run(a) => cli::run::run(a, args.format),
+        Command::Lmnn(a) => cli::lmnn::run(a, args.format),
+        Command::Map(a) => cli::map::run(a, args.format),
         #[cfg(feature = "probe")]
         Command::Flash(a) => cli::flash::run(a, args.format),
         #[cfg(feature = "probe")]

@@ -11,6 +11,8 @@ pub mod fgo;
 pub mod filter;
 #[cfg(feature = "probe")]
 pub mod flash;
+pub mod lmnn;
+pub mod map;
 pub mod print;
 pub mod qemu;
 pub mod record;
