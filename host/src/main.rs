@@ -41,6 +41,10 @@ enum Command {
     /// Mission report from a recording (+ truth): plots and a Markdown/HTML page.
     Report(cli::report::Args),
     /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
+    /// Under-ice odometry (MSCKF: IMU, stereo, depth, imaging-sonar velocity): simulate/evaluate or run on a track file.
+    Ice(cli::ice::Args),
+    /// Translation between two images by phase correlation with a sub-pixel (DFT-upsampled) peak.
+    Phasecorr(cli::phasecorr::Args),
     #[cfg(feature = "probe")]
     Flash(cli::flash::Args),
     /// Attach to a running board through a debug probe: stream defmt (RTT) and telemetry.
@@ -67,6 +71,8 @@ fn main() -> std::process::ExitCode {
         Command::Record(a) => cli::record::run(a, args.format),
         Command::Export(a) => cli::export::run(a, args.format),
         Command::Report(a) => cli::report::run(a, args.format),
+        Command::Ice(a) => cli::ice::run(a, args.format),
+        Command::Phasecorr(a) => cli::phasecorr::run(a, args.format),
         #[cfg(feature = "probe")]
         Command::Flash(a) => cli::flash::run(a, args.format),
         #[cfg(feature = "probe")]

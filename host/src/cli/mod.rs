@@ -11,6 +11,8 @@ pub mod fgo;
 pub mod filter;
 #[cfg(feature = "probe")]
 pub mod flash;
+pub mod ice;
+pub mod phasecorr;
 pub mod print;
 pub mod qemu;
 pub mod record;

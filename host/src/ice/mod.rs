@@ -1,4 +1,23 @@
 //! Under-ice odometry (spec 004): an MSCKF-style error-state EKF fusing an IMU, an up-looking
 //! stereo camera, a depth gauge and a forward-looking imaging sonar (velocity by phase correlation).
+//!
+//! Nouns: [`state`] (IMU state, clones, covariance hygiene), [`propagation`] (static init, RK4,
+//! discrete noise), [`camera`] (stereo model), [`triangulation`], [`msckf`] (null-space
+//! projected, gated feature update), [`window`] (pruning rule), [`depth`] and [`sonar`] (one file
+//! per sensor update), [`phasecorr`], [`odometry`] (the event loop), [`sim`], [`data`] (files),
+//! [`eval`] (ATE / RPE / NEES).
 
+pub mod camera;
+pub mod data;
+pub mod depth;
+pub mod eval;
+pub mod montecarlo;
+pub mod msckf;
+pub mod odometry;
 pub mod phasecorr;
+pub mod propagation;
+pub mod sim;
+pub mod sonar;
+pub mod state;
+pub mod triangulation;
+pub mod window;
