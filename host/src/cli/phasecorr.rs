@@ -23,6 +23,9 @@ pub struct Args {
     /// Search every sample of the upsampled neighbourhood (as scikit-image does) instead of coarse-to-fine.
     #[arg(long)]
     pub full_search: bool,
+    /// Time the registration: repeat it N times (one core) and report the mean time per pair.
+    #[arg(long, default_value_t = 0)]
+    pub time_repeat: u32,
 }
 
 /// A PNG as a grey image (luma 0.299 R + 0.587 G + 0.114 B for colour), samples scaled to [0, 1].
@@ -60,10 +63,27 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         bail!("--upsample must be >= 1");
     }
     let mode = if args.full_search { Refinement::Full } else { Refinement::CoarseToFine };
-    let s = PhaseCorrelator::new(a.rows, a.cols).register(&a, &b, args.upsample, mode)?;
+    let mut pc = PhaseCorrelator::new(a.rows, a.cols);
+    let s = pc.register(&a, &b, args.upsample, mode)?;
+    let mut us_per_pair = None;
+    if args.time_repeat > 0 {
+        let t0 = std::time::Instant::now();
+        for _ in 0..args.time_repeat {
+            std::hint::black_box(pc.register(std::hint::black_box(&a), &b, args.upsample, mode)?);
+        }
+        us_per_pair = Some(t0.elapsed().as_secs_f64() * 1e6 / args.time_repeat as f64);
+    }
     match format {
-        Format::Text => println!("shift rows {:.4} px, cols {:.4} px (peak {:.3})", s.rows_px, s.cols_px, s.peak),
-        Format::Json => println!("{}", json!({"rows_px": s.rows_px, "cols_px": s.cols_px, "peak": s.peak, "upsample": args.upsample})),
+        Format::Text => {
+            println!("shift rows {:.4} px, cols {:.4} px (peak {:.3})", s.rows_px, s.cols_px, s.peak);
+            if let Some(us) = us_per_pair {
+                println!("{us:.1} us per pair ({}x{}, upsample {}, {} repeats)", a.rows, a.cols, args.upsample, args.time_repeat);
+            }
+        }
+        Format::Json => println!(
+            "{}",
+            json!({"rows_px": s.rows_px, "cols_px": s.cols_px, "peak": s.peak, "upsample": args.upsample, "us_per_pair": us_per_pair})
+        ),
     }
     Ok(ExitCode::SUCCESS)
 }

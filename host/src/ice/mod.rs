@@ -11,6 +11,7 @@ pub mod camera;
 pub mod data;
 pub mod depth;
 pub mod eval;
+pub mod frontend;
 pub mod montecarlo;
 pub mod msckf;
 pub mod odometry;
