@@ -160,19 +160,21 @@ impl PhaseCorrelator {
         let floor = 100.0 * f64::EPSILON;
         for (x, y) in self.a.iter_mut().zip(self.b.iter_mut()) {
             let p = *x * y.conj();
-            let q = p / p.norm().max(floor);
+            // sqrt(re^2 + im^2) instead of hypot: no overflow risk at image magnitudes, much cheaper.
+            let q = p / p.norm_sqr().sqrt().max(floor);
             *x = q;
             *y = q;
         }
         self.fft2(0, true);
         let (mut best, mut best_i) = (-1.0, 0usize);
         for (i, v) in self.a.iter().enumerate() {
-            let m = v.norm();
+            let m = v.norm_sqr();
             if m > best {
                 best = m;
                 best_i = i;
             }
         }
+        let best = best.sqrt();
         let n_px = (self.rows * self.cols) as f64;
         let wrap = |idx: usize, n: usize| if idx > n / 2 { idx as f64 - n as f64 } else { idx as f64 };
         let mut sr = wrap(best_i / self.cols, self.rows);
@@ -209,12 +211,22 @@ impl PhaseCorrelator {
     fn upsampled_argmax(&mut self, ks: &[usize], ls: &[usize], off_r: f64, off_c: f64, up: f64) -> (usize, usize, f64) {
         let (rows, cols) = (self.rows, self.cols);
         let kernel = |idx: &[usize], off: f64, n: usize| -> Vec<Complex64> {
-            let mut k = Vec::with_capacity(idx.len() * n);
-            for &i in idx {
-                for u in 0..n {
-                    let f = fftfreq(u, n) / up;
-                    let (s, c) = (2.0 * std::f64::consts::PI * (i as f64 - off) * f).sin_cos();
-                    k.push(Complex64::new(c, s));
+            // exp(i 2 pi (i - off) f_u) with f_u = s_u / (n up), s_u the signed bin: powers of one
+            // phasor (one sin_cos per row instead of per entry), negative bins from the positive
+            // powers times exp(-i 2 pi (i - off) / up). Re-anchored every 16 steps against drift.
+            let mut k = vec![Complex64::ZERO; idx.len() * n];
+            let half = n.div_ceil(2);
+            for (row, &i) in k.chunks_exact_mut(n).zip(idx) {
+                let alpha = 2.0 * std::f64::consts::PI * (i as f64 - off) / (n as f64 * up);
+                let step = Complex64::from_polar(1.0, alpha);
+                let wrap = Complex64::from_polar(1.0, -alpha * n as f64);
+                let mut z = Complex64::new(1.0, 0.0);
+                for (u, slot) in row.iter_mut().enumerate() {
+                    if u % 16 == 0 {
+                        z = Complex64::from_polar(1.0, alpha * u as f64);
+                    }
+                    *slot = if u < half { z } else { z * wrap };
+                    z *= step;
                 }
             }
             k
@@ -244,14 +256,14 @@ impl PhaseCorrelator {
                 }
             }
             for (li, a) in acc.iter().enumerate() {
-                let m = a.norm();
+                let m = a.norm_sqr();
                 if m > best {
                     best = m;
                     arg = (ks[ki], ls[li]);
                 }
             }
         }
-        (arg.0, arg.1, best)
+        (arg.0, arg.1, best.sqrt())
     }
 }
 
@@ -261,7 +273,7 @@ fn coarse_grid(centre: usize, step: usize, region: usize) -> Vec<usize> {
     (0..).map(|j| centre - below * step + j * step).take_while(|&k| k < region).collect()
 }
 
-/// numpy's `fftfreq(n)[u]` times `n`... divided by `n`: the signed frequency of bin `u`, cycles/sample.
+/// numpy's `fftfreq(n)[u]`: the signed frequency of bin `u`, cycles/sample.
 fn fftfreq(u: usize, n: usize) -> f64 {
     let s = if u < n.div_ceil(2) { u as f64 } else { u as f64 - n as f64 };
     s / n as f64
