@@ -126,12 +126,24 @@ pub fn run(data: &Dataset, cfg: &OdometryConfig, cam: &StereoCamera) -> Result<(
     let mut out = Vec::new();
     let mut fr = Frontier { features: HashMap::new(), prev_ids: Vec::new() };
 
-    // Depth reference: the reading closest to the initialization time.
-    if cfg.use_depth
-        && let Some(d) = data.depth.iter().min_by(|a, b| (a.t_s - st.imu.t_s).abs().total_cmp(&(b.t_s - st.imu.t_s).abs()))
-        && (d.t_s - st.imu.t_s).abs() < 0.5
-    {
-        depth.set_reference(d.depth_m, &st.imu);
+    // Depth reference: the mean of the readings taken while still (at least one, within 0.5 s of
+    // the initialization otherwise). Its noise is a constant error of every relative depth, so it
+    // goes into the initial vertical-position variance instead of being ignored.
+    if cfg.use_depth {
+        let still_readings: Vec<f64> = data.depth.iter().filter(|d| d.t_s <= st.imu.t_s).map(|d| d.depth_m).collect();
+        let (reference, count) = if still_readings.is_empty() {
+            let near = data.depth.iter().min_by(|a, b| (a.t_s - st.imu.t_s).abs().total_cmp(&(b.t_s - st.imu.t_s).abs()));
+            match near {
+                Some(d) if (d.t_s - st.imu.t_s).abs() < 0.5 => (Some(d.depth_m), 1usize),
+                _ => (None, 0),
+            }
+        } else {
+            (Some(still_readings.iter().sum::<f64>() / still_readings.len() as f64), still_readings.len())
+        };
+        if let Some(r) = reference {
+            depth.set_reference(r, &st.imu);
+            st.cov[(POS + 2, POS + 2)] += cfg.depth.sigma_m.powi(2) / count as f64;
+        }
     }
     let (mut fi, mut di, mut si) = (0usize, 0usize, 0usize);
     let t0 = st.imu.t_s;
