@@ -82,7 +82,8 @@ impl<T: RealField + Copy, const M: usize> AdaptiveNoise<T, M> {
 /// Linear interpolation of a quantity sampled at `t0 < t1` (e.g. the IMU-integrated vertical
 /// position) to a sensor time `t` in `[t0, t1]`.
 pub fn interpolate_at<T: RealField + Copy>(t0: T, v0: T, t1: T, v1: T, t: T) -> Result<T, AdaptError> {
-    if !(t1 > t0) || t < t0 || t > t1 {
+    let increasing = matches!(t1.partial_cmp(&t0), Some(core::cmp::Ordering::Greater));
+    if !increasing || !t.is_finite() || t < t0 || t > t1 {
         return Err(AdaptError::OutOfRange);
     }
     let w = (t - t0) / (t1 - t0);
@@ -145,5 +146,7 @@ mod tests {
         assert!((z - 10.1).abs() < 1e-9);
         assert_eq!(interpolate_at(1.0, 0.0, 1.01, 1.0, 1.02), Err(AdaptError::OutOfRange));
         assert_eq!(interpolate_at(1.0, 0.0, 1.0, 1.0, 1.0), Err(AdaptError::OutOfRange));
+        assert_eq!(interpolate_at(1.0, 0.0, 2.0, 1.0, f64::NAN), Err(AdaptError::OutOfRange));
+        assert_eq!(interpolate_at(f64::NAN, 0.0, 2.0, 1.0, 1.5), Err(AdaptError::OutOfRange));
     }
 }

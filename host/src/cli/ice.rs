@@ -99,7 +99,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     if !args.simulate {
         bail!("give --simulate or --input DIR");
     }
-    if args.runs == 0 || !(args.distance_m > 0.0) {
+    if args.runs == 0 || args.distance_m.is_nan() || args.distance_m <= 0.0 {
         bail!("--runs must be >= 1 and --distance-m > 0");
     }
     let variants: Vec<Variant> = if args.ablations { Variant::ALL.to_vec() } else { vec![Variant::Full] };
