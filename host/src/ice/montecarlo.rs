@@ -69,11 +69,24 @@ pub fn run_seed(sim: &SimConfig, base: &OdometryConfig, variants: &[Variant]) ->
     Ok(out)
 }
 
-/// Mean and max of a figure over runs.
+/// Mean and max of a figure over runs; NaN (e.g. an RPE segment longer than the run) is skipped,
+/// and an empty set gives NaN.
 pub fn mean_max(xs: impl Iterator<Item = f64>) -> (f64, f64) {
-    let v: Vec<f64> = xs.collect();
+    let v: Vec<f64> = xs.filter(|x| !x.is_nan()).collect();
     if v.is_empty() {
         return (f64::NAN, f64::NAN);
     }
     (v.iter().sum::<f64>() / v.len() as f64, v.iter().copied().fold(f64::MIN, f64::max))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::mean_max;
+
+    #[test]
+    fn mean_max_skips_nan() {
+        assert_eq!(mean_max([1.0, f64::NAN, 3.0].into_iter()), (2.0, 3.0));
+        let (m, x) = mean_max([f64::NAN].into_iter());
+        assert!(m.is_nan() && x.is_nan());
+    }
 }
