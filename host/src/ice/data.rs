@@ -9,6 +9,8 @@
 //! - `truth.csv` (optional): `t_s,qw,qx,qy,qz,x,y,z,vx,vy,vz` (body->world quaternion, NED).
 //!
 //! The back end therefore runs without images (feature tracks from a file or the simulator).
+//! Times are written with 1 us resolution, so a written and re-read simulation is not bit-identical
+//! to the in-memory one (the estimates agree to millimetres, `tests/ice_sim.rs`).
 
 use std::fmt::Write as _;
 use std::path::Path;

@@ -5,7 +5,12 @@
 //! discrete noise), [`camera`] (stereo model), [`triangulation`], [`msckf`] (null-space
 //! projected, gated feature update), [`window`] (pruning rule), [`depth`] and [`sonar`] (one file
 //! per sensor update), [`phasecorr`], [`odometry`] (the event loop), [`sim`], [`data`] (files),
-//! [`eval`] (ATE / RPE / NEES).
+//! [`eval`] (ATE / RPE / NEES), [`montecarlo`] (seeded runs and ablations), [`frontend`] (dehazing,
+//! flat-port refraction).
+//!
+//! Not built yet: the FAST + KLT image tracker (the back end takes feature tracks from the
+//! simulator or a file), and the spec's previous-image-based clone augmentation (D3): every clone
+//! is augmented from the IMU pose; the pruning rule's tracking-quality test is implemented.
 
 pub mod camera;
 pub mod data;
