@@ -8,6 +8,7 @@ pub mod compass;
 pub mod export;
 pub mod fgo;
 pub mod filter;
+pub mod ice;
 pub mod link;
 pub mod lmnn;
 pub mod polar_image;

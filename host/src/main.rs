@@ -49,6 +49,10 @@ enum Command {
     /// Topological map from polarization images with AUKF-SLAM loop closures (simulated survey or recorded data).
     Map(cli::map::Args),
     /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
+    /// Under-ice odometry (MSCKF: IMU, stereo, depth, imaging-sonar velocity): simulate/evaluate or run on a track file.
+    Ice(cli::ice::Args),
+    /// Translation between two images by phase correlation with a sub-pixel (DFT-upsampled) peak.
+    Phasecorr(cli::phasecorr::Args),
     #[cfg(feature = "probe")]
     Flash(cli::flash::Args),
     /// Attach to a running board through a debug probe: stream defmt (RTT) and telemetry.
@@ -79,6 +83,8 @@ fn main() -> std::process::ExitCode {
         Command::Run(a) => cli::run::run(a, args.format),
         Command::Lmnn(a) => cli::lmnn::run(a, args.format),
         Command::Map(a) => cli::map::run(a, args.format),
+        Command::Ice(a) => cli::ice::run(a, args.format),
+        Command::Phasecorr(a) => cli::phasecorr::run(a, args.format),
         #[cfg(feature = "probe")]
         Command::Flash(a) => cli::flash::run(a, args.format),
         #[cfg(feature = "probe")]

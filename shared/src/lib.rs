@@ -7,6 +7,7 @@
 //! - [`compass`]: polarization compass: photodiode counts -> Stokes -> sun vector -> heading.
 //! - [`ukf`]: generic fixed-size (adaptive) unscented Kalman filter.
 //! - [`nav`]: the sensor head's INS error-state navigation filter and its per-sensor updates.
+//! - [`depth_adaptive`]: adaptive measurement noise with a forgetting factor (under-ice depth/sonar updates).
 //! - [`head`]: the sensor head's configuration: rates, compass units, sensor grades (read by the
 //!   firmware's default tuning and by the host simulator).
 //!
@@ -16,6 +17,7 @@
 
 pub mod bridge;
 pub mod compass;
+pub mod depth_adaptive;
 pub mod ephemeris;
 pub mod head;
 pub mod nav;

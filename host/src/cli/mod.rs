@@ -13,6 +13,8 @@ pub mod filter;
 pub mod flash;
 pub mod lmnn;
 pub mod map;
+pub mod ice;
+pub mod phasecorr;
 pub mod print;
 pub mod qemu;
 pub mod record;

@@ -1,0 +1,100 @@
+//! `subnav phasecorr A.png B.png [--upsample N]`: the translation that registers B with A by
+//! phase correlation with a DFT-upsampled sub-pixel peak (`ice::phasecorr`, the sonar-velocity
+//! step of the under-ice odometry). Colour images are converted to luma.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use serde_json::json;
+
+use super::Format;
+use crate::ice::phasecorr::{Gray, PhaseCorrelator, Refinement};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Reference image (PNG, grey or colour, 8 or 16 bit).
+    pub reference: PathBuf,
+    /// Moving image, same size.
+    pub moving: PathBuf,
+    /// Sub-pixel resolution 1/N pixel (1: integer shift only).
+    #[arg(long, default_value_t = 100)]
+    pub upsample: usize,
+    /// Search every sample of the upsampled neighbourhood (as scikit-image does) instead of coarse-to-fine.
+    #[arg(long)]
+    pub full_search: bool,
+    /// Time the registration: repeat it N times (one core) and report the mean time per pair.
+    #[arg(long, default_value_t = 0)]
+    pub time_repeat: u32,
+}
+
+/// A PNG as a grey image (luma 0.299 R + 0.587 G + 0.114 B for colour), samples scaled to [0, 1].
+pub fn read_png_gray(path: &Path) -> Result<Gray> {
+    let file = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().with_context(|| format!("{} is not a readable PNG", path.display()))?;
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).with_context(|| format!("decoding {}", path.display()))?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let channels = info.color_type.samples();
+    let sample = |i: usize| -> f64 {
+        match info.bit_depth {
+            png::BitDepth::Sixteen => u16::from_be_bytes([buf[2 * i], buf[2 * i + 1]]) as f64 / 65535.0,
+            _ => buf[i] as f64 / 255.0,
+        }
+    };
+    let mut data = Vec::with_capacity(w * h);
+    for p in 0..w * h {
+        let base = p * channels;
+        data.push(match channels {
+            1 | 2 => sample(base),
+            3 | 4 => 0.299 * sample(base) + 0.587 * sample(base + 1) + 0.114 * sample(base + 2),
+            n => bail!("{}: unsupported PNG with {n} channels", path.display()),
+        });
+    }
+    Ok(Gray::new(h, w, data)?)
+}
+
+/// CPU time of this process, seconds.
+fn cpu_time_s() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes into the timespec we own.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts);
+    }
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let a = read_png_gray(&args.reference)?;
+    let b = read_png_gray(&args.moving)?;
+    if args.upsample == 0 {
+        bail!("--upsample must be >= 1");
+    }
+    let mode = if args.full_search { Refinement::Full } else { Refinement::CoarseToFine };
+    let mut pc = PhaseCorrelator::new(a.rows, a.cols);
+    let s = pc.register(&a, &b, args.upsample, mode)?;
+    let mut us_per_pair = None;
+    if args.time_repeat > 0 {
+        // Process CPU time, not wall time: the figure must not depend on other load on the machine.
+        let t0 = cpu_time_s();
+        for _ in 0..args.time_repeat {
+            std::hint::black_box(pc.register(std::hint::black_box(&a), &b, args.upsample, mode)?);
+        }
+        us_per_pair = Some((cpu_time_s() - t0) * 1e6 / args.time_repeat as f64);
+    }
+    match format {
+        Format::Text => {
+            println!("shift rows {:.4} px, cols {:.4} px (peak {:.3})", s.rows_px, s.cols_px, s.peak);
+            if let Some(us) = us_per_pair {
+                println!("{us:.1} us CPU per pair ({}x{}, upsample {}, {} repeats)", a.rows, a.cols, args.upsample, args.time_repeat);
+            }
+        }
+        Format::Json => println!(
+            "{}",
+            json!({"rows_px": s.rows_px, "cols_px": s.cols_px, "peak": s.peak, "upsample": args.upsample, "us_per_pair": us_per_pair})
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
+}

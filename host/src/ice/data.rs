@@ -1,0 +1,169 @@
+//! The odometry's inputs and the truth, in memory and as files. A directory holds:
+//! - `imu.csv`: `t_s,gx,gy,gz,ax,ay,az` (rad/s, m/s^2, body FRD),
+//! - `tracks.csv`: `t_s,frame_id,feature_id,ul,vl,ur,vr` (normalized stereo image coordinates, one
+//!   row per feature and frame; a new id starts a new track),
+//! - `depth.csv`: `t_s,depth_m`,
+//! - `sonar_velocity.csv` (optional): `t_s,los_mps,peak` (line-of-sight speeds from the sonar
+//!   images, as `ice::sonar::velocities` makes them),
+//! - `camera.json`: the [`StereoCamera`], `meta.json`: `{"still_s": ..}`,
+//! - `truth.csv` (optional): `t_s,qw,qx,qy,qz,x,y,z,vx,vy,vz` (body->world quaternion, NED).
+//!
+//! The back end therefore runs without images (feature tracks from a file or the simulator).
+//! Times are written with 1 us resolution, so a written and re-read simulation is not bit-identical
+//! to the in-memory one (the estimates agree to millimetres, `tests/ice_sim.rs`).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3, Vector4};
+
+use super::camera::{StereoCamera, StereoObs};
+use super::phasecorr::Gray;
+use super::propagation::ImuSample;
+use super::sonar::SonarVelocity;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    pub t_s: f64,
+    pub frame_id: u64,
+    pub obs: Vec<(u64, StereoObs)>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthReading {
+    pub t_s: f64,
+    pub depth_m: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct TruthSample {
+    pub t_s: f64,
+    pub rot: Matrix3<f64>,
+    pub pos_w_m: Vector3<f64>,
+    pub vel_w_mps: Vector3<f64>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    pub imu: Vec<ImuSample>,
+    pub frames: Vec<Frame>,
+    pub depth: Vec<DepthReading>,
+    /// Raw sonar images (simulator); turned into `sonar_velocity` by the sonar front end.
+    pub sonar_frames: Vec<(f64, Gray)>,
+    pub sonar_velocity: Vec<SonarVelocity>,
+    pub truth: Vec<TruthSample>,
+    pub cam: StereoCamera,
+    /// The vehicle floats still for the first `still_s` seconds (static initialization).
+    pub still_s: f64,
+}
+
+fn parse_rows(path: &Path, min_cols: usize) -> Result<Vec<Vec<f64>>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut rows = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with('t') {
+            continue;
+        }
+        let vals: Result<Vec<f64>, _> = line.split(',').map(|x| x.trim().parse::<f64>()).collect();
+        let vals = vals.with_context(|| format!("{}:{}: not a number row: {line:?}", path.display(), i + 1))?;
+        if vals.len() < min_cols {
+            bail!("{}:{}: expected {min_cols} columns, got {}", path.display(), i + 1, vals.len());
+        }
+        if vals.iter().any(|v| !v.is_finite()) {
+            bail!("{}:{}: NaN or infinite value", path.display(), i + 1);
+        }
+        rows.push(vals);
+    }
+    Ok(rows)
+}
+
+impl Dataset {
+    pub fn read_dir(dir: &Path) -> Result<Self> {
+        let imu: Vec<ImuSample> = parse_rows(&dir.join("imu.csv"), 7)?
+            .into_iter()
+            .map(|r| ImuSample { t_s: r[0], gyro_radps: Vector3::new(r[1], r[2], r[3]), acc_mps2: Vector3::new(r[4], r[5], r[6]) })
+            .collect();
+        if imu.windows(2).any(|w| w[1].t_s <= w[0].t_s) {
+            bail!("imu.csv: timestamps must increase strictly");
+        }
+        let mut frames: Vec<Frame> = Vec::new();
+        for r in parse_rows(&dir.join("tracks.csv"), 7)? {
+            let fid = r[1] as u64;
+            let z = Vector4::new(r[3], r[4], r[5], r[6]);
+            match frames.last_mut() {
+                Some(f) if f.frame_id == fid => f.obs.push((r[2] as u64, z)),
+                _ => frames.push(Frame { t_s: r[0], frame_id: fid, obs: vec![(r[2] as u64, z)] }),
+            }
+        }
+        let depth = parse_rows(&dir.join("depth.csv"), 2)?.into_iter().map(|r| DepthReading { t_s: r[0], depth_m: r[1] }).collect();
+        let sv = dir.join("sonar_velocity.csv");
+        let sonar_velocity = if sv.exists() {
+            parse_rows(&sv, 3)?.into_iter().map(|r| SonarVelocity { t_s: r[0], los_mps: r[1], peak: r[2] }).collect()
+        } else {
+            Vec::new()
+        };
+        let tp = dir.join("truth.csv");
+        let truth = if tp.exists() {
+            parse_rows(&tp, 11)?
+                .into_iter()
+                .map(|r| TruthSample {
+                    t_s: r[0],
+                    rot: UnitQuaternion::from_quaternion(Quaternion::new(r[1], r[2], r[3], r[4])).to_rotation_matrix().into_inner(),
+                    pos_w_m: Vector3::new(r[5], r[6], r[7]),
+                    vel_w_mps: Vector3::new(r[8], r[9], r[10]),
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let cam: StereoCamera = serde_json::from_str(&std::fs::read_to_string(dir.join("camera.json")).context("reading camera.json")?)
+            .context("camera.json")?;
+        let meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("meta.json")).context("reading meta.json")?).context("meta.json")?;
+        let still_s = meta.get("still_s").and_then(|v| v.as_f64()).context("meta.json: still_s missing")?;
+        Ok(Self { imu, frames, depth, sonar_frames: Vec::new(), sonar_velocity, truth, cam, still_s })
+    }
+
+    pub fn write_dir(&self, dir: &Path) -> Result<()> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let mut s = String::from("t_s,gx,gy,gz,ax,ay,az\n");
+        for m in &self.imu {
+            let (g, a) = (m.gyro_radps, m.acc_mps2);
+            let _ = writeln!(s, "{:.6},{:e},{:e},{:e},{:e},{:e},{:e}", m.t_s, g.x, g.y, g.z, a.x, a.y, a.z);
+        }
+        std::fs::write(dir.join("imu.csv"), s)?;
+        let mut s = String::from("t_s,frame_id,feature_id,ul,vl,ur,vr\n");
+        for f in &self.frames {
+            for (id, z) in &f.obs {
+                let _ = writeln!(s, "{:.6},{},{},{:e},{:e},{:e},{:e}", f.t_s, f.frame_id, id, z[0], z[1], z[2], z[3]);
+            }
+        }
+        std::fs::write(dir.join("tracks.csv"), s)?;
+        let mut s = String::from("t_s,depth_m\n");
+        for d in &self.depth {
+            let _ = writeln!(s, "{:.6},{:.6}", d.t_s, d.depth_m);
+        }
+        std::fs::write(dir.join("depth.csv"), s)?;
+        let mut s = String::from("t_s,los_mps,peak\n");
+        for v in &self.sonar_velocity {
+            let _ = writeln!(s, "{:.6},{:e},{:e}", v.t_s, v.los_mps, v.peak);
+        }
+        std::fs::write(dir.join("sonar_velocity.csv"), s)?;
+        let mut s = String::from("t_s,qw,qx,qy,qz,x,y,z,vx,vy,vz\n");
+        for t in &self.truth {
+            let q = UnitQuaternion::from_matrix(&t.rot);
+            let (p, v) = (t.pos_w_m, t.vel_w_mps);
+            let _ = writeln!(
+                s,
+                "{:.6},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}",
+                t.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, v.x, v.y, v.z
+            );
+        }
+        std::fs::write(dir.join("truth.csv"), s)?;
+        std::fs::write(dir.join("camera.json"), serde_json::to_string_pretty(&self.cam)?)?;
+        std::fs::write(dir.join("meta.json"), serde_json::json!({"still_s": self.still_s}).to_string())?;
+        Ok(())
+    }
+}

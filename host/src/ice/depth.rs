@@ -1,0 +1,114 @@
+//! Depth-gauge update (D5). Time alignment: a reading at `t_d` between IMU samples `t_i < t_d <=
+//! t_i+1` is compared with the gauge depth predicted from the IMU-integrated state at both samples,
+//! interpolated to `t_d` (`subnav_shared::depth_adaptive::interpolate_at`). Relative depth: the
+//! residual is the change of the reading since the reference reading taken at initialization (which
+//! removes the gauge's offset: surface pressure, ice draft) against the change of the gauge's
+//! predicted depth `p_z + (R l)_z` (lever arm `l` in the body frame), so the update needs no
+//! absolute depth. Noise: fixed, or adaptive with forgetting factor (shared `AdaptiveNoise`).
+
+use nalgebra::{DMatrix, DVector, Matrix1, Vector1, Vector3};
+use subnav_shared::depth_adaptive::{AdaptiveNoise, interpolate_at};
+
+use super::state::{FilterState, ImuState, POS, TH};
+use crate::fgo::so3::hat;
+
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DepthConfig {
+    /// Gauge position in the body frame, m.
+    pub lever_b_m: Vector3<f64>,
+    /// Initial (and, without adaptivity, fixed) noise sigma, m.
+    pub sigma_m: f64,
+    /// Forgetting factor of the adaptive R.
+    pub alpha: f64,
+    pub adaptive: bool,
+    /// Chi-square gate probability (1 dof).
+    pub gate: f64,
+}
+
+impl Default for DepthConfig {
+    fn default() -> Self {
+        Self { lever_b_m: Vector3::new(-0.3, 0.0, 0.1), sigma_m: 0.05, alpha: 0.98, adaptive: true, gate: 0.9999 }
+    }
+}
+
+/// Gauge depth predicted from an IMU state (relative to the world origin's depth).
+pub fn gauge_depth(imu: &ImuState, cfg: &DepthConfig) -> f64 {
+    imu.pos_w_m.z + (imu.rot * cfg.lever_b_m).z
+}
+
+pub struct DepthUpdater {
+    pub cfg: DepthConfig,
+    /// Reading minus predicted gauge depth at initialization.
+    reference: Option<f64>,
+    pub noise: AdaptiveNoise<f64, 1>,
+    pub used: usize,
+    pub gated: usize,
+}
+
+impl DepthUpdater {
+    pub fn new(cfg: DepthConfig) -> Self {
+        let r0 = cfg.sigma_m * cfg.sigma_m;
+        let noise = AdaptiveNoise::new(Matrix1::new(r0), cfg.alpha.clamp(0.0, 0.999_999), r0 * 1e-2, r0 * 1e4).unwrap_or(AdaptiveNoise {
+            r: Matrix1::new(r0),
+            alpha: 0.98,
+            r_min: r0 * 1e-2,
+            r_max: r0 * 1e4,
+            steps: 0,
+        });
+        Self { cfg, reference: None, noise, used: 0, gated: 0 }
+    }
+
+    /// Set the reference from a reading at the initialization time.
+    pub fn set_reference(&mut self, depth_m: f64, imu: &ImuState) {
+        self.reference = Some(depth_m - gauge_depth(imu, &self.cfg));
+    }
+
+    pub fn has_reference(&self) -> bool {
+        self.reference.is_some()
+    }
+
+    /// Update with a reading at `t_d`, the filter being at `t_i+1 >= t_d` and `prev` the IMU
+    /// state at the previous sample `t_i`.
+    pub fn update(&mut self, st: &mut FilterState, prev: &ImuState, t_d: f64, depth_m: f64) {
+        let Some(reference) = self.reference else { return };
+        if !depth_m.is_finite() {
+            return;
+        }
+        let (g0, g1) = (gauge_depth(prev, &self.cfg), gauge_depth(&st.imu, &self.cfg));
+        let pred = match interpolate_at(prev.t_s, g0, st.imu.t_s, g1, t_d) {
+            Ok(p) => p,
+            Err(_) => g1,
+        };
+        let r = depth_m - reference - pred;
+        let n = st.dim();
+        let mut h = DMatrix::zeros(1, n);
+        h[(0, POS + 2)] = 1.0;
+        // d(R l)_z / d(dtheta) = -(R [l]x)_z row.
+        let d = -(st.imu.rot * hat(&self.cfg.lever_b_m));
+        for k in 0..3 {
+            h[(0, TH + k)] = d[(2, k)];
+        }
+        let rcov = DMatrix::from_element(1, 1, self.noise.r[(0, 0)]);
+        let s = (&h * &st.cov * h.transpose())[(0, 0)] + rcov[(0, 0)];
+        let limit = crate::fgo::gating::chi2_quantile(1, self.cfg.gate).unwrap_or(f64::INFINITY);
+        if r * r / s > limit {
+            self.gated += 1;
+            // The gated residual still informs the adaptive R (clipped to the gate), so a gauge
+            // whose noise grew is not locked out for good.
+            if self.cfg.adaptive {
+                let clipped = r.signum() * (limit * s).sqrt();
+                let hph = (&h * &st.cov * h.transpose())[(0, 0)];
+                let _ = self.noise.step(&Vector1::new(clipped), &Matrix1::new(hph));
+            }
+            return;
+        }
+        if let Some(dx) = st.ekf_update(&DVector::from_element(1, r), &h, &rcov) {
+            self.used += 1;
+            if self.cfg.adaptive {
+                let mu = r - (&h * dx)[(0, 0)];
+                let hph = (&h * &st.cov * h.transpose())[(0, 0)];
+                let _ = self.noise.step(&Vector1::new(mu), &Matrix1::new(hph));
+            }
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! Seeded simulated runs of the odometry and its ablations (no sonar, no depth, no adaptivity,
+//! IMU only), evaluated with [`super::eval`].
+
+use anyhow::Result;
+
+use super::eval::{Metrics, evaluate};
+use super::odometry::{OdometryConfig, RunStats, run};
+use super::sim::{SimConfig, simulate};
+use super::sonar;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum Variant {
+    Full,
+    NoSonar,
+    NoDepth,
+    NoAdaptivity,
+    ImuOnly,
+}
+
+impl Variant {
+    pub const ALL: [Variant; 5] = [Variant::Full, Variant::NoSonar, Variant::NoDepth, Variant::NoAdaptivity, Variant::ImuOnly];
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Full => "full",
+            Self::NoSonar => "no-sonar",
+            Self::NoDepth => "no-depth",
+            Self::NoAdaptivity => "no-adaptivity",
+            Self::ImuOnly => "imu-only",
+        }
+    }
+    pub fn config(self, base: &OdometryConfig) -> OdometryConfig {
+        let mut c = *base;
+        match self {
+            Self::Full => {}
+            Self::NoSonar => c.use_sonar = false,
+            Self::NoDepth => c.use_depth = false,
+            Self::NoAdaptivity => c.adaptive = false,
+            Self::ImuOnly => {
+                c.use_camera = false;
+                c.use_depth = false;
+                c.use_sonar = false;
+            }
+        }
+        c
+    }
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RunResult {
+    pub seed: u64,
+    pub variant: Variant,
+    pub metrics: Metrics,
+    pub stats: RunStats,
+}
+
+pub const RPE_LENGTHS_M: [f64; 2] = [50.0, 100.0];
+
+/// Simulate `seed`, derive the sonar velocities from the images, and run each variant.
+pub fn run_seed(sim: &SimConfig, base: &OdometryConfig, variants: &[Variant]) -> Result<Vec<RunResult>> {
+    let mut data = simulate(sim);
+    data.sonar_velocity = sonar::velocities(&data.sonar_frames, &base.sonar);
+    let mut out = Vec::new();
+    for &v in variants {
+        let cfg = v.config(base);
+        let (est, stats) = run(&data, &cfg, &data.cam)?;
+        let metrics = evaluate(&est, &data.truth, &RPE_LENGTHS_M);
+        out.push(RunResult { seed: sim.seed, variant: v, metrics, stats });
+    }
+    Ok(out)
+}
+
+/// Mean and max of a figure over runs; NaN (e.g. an RPE segment longer than the run) is skipped,
+/// and an empty set gives NaN.
+pub fn mean_max(xs: impl Iterator<Item = f64>) -> (f64, f64) {
+    let v: Vec<f64> = xs.filter(|x| !x.is_nan()).collect();
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    (v.iter().sum::<f64>() / v.len() as f64, v.iter().copied().fold(f64::MIN, f64::max))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::mean_max;
+
+    #[test]
+    fn mean_max_skips_nan() {
+        assert_eq!(mean_max([1.0, f64::NAN, 3.0].into_iter()), (2.0, 3.0));
+        let (m, x) = mean_max([f64::NAN].into_iter());
+        assert!(m.is_nan() && x.is_nan());
+    }
+}
