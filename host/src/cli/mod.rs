@@ -11,9 +11,9 @@ pub mod fgo;
 pub mod filter;
 #[cfg(feature = "probe")]
 pub mod flash;
+pub mod ice;
 pub mod lmnn;
 pub mod map;
-pub mod ice;
 pub mod phasecorr;
 pub mod print;
 pub mod qemu;
