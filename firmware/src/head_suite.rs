@@ -95,6 +95,19 @@ where
             init,
         }
     }
+
+    fn service_depth(&mut self, t_us: u64) {
+        if self.depth_ready {
+            match self.depth.poll(t_us) {
+                Ok(Some(r)) => {
+                    self.depth_error = None;
+                    self.last_depth = Some((t_us, DepthSample { t_us, pressure_pa: r.pressure_pa, temp_c: r.temp_c, depth_m: r.depth_m }));
+                }
+                Ok(None) => {}
+                Err(e) => self.depth_error = Some(kind(&e)),
+            }
+        }
+    }
 }
 
 impl<SPI, I2C> SensorSuite for HeadSuite<SPI, I2C>
@@ -128,39 +141,6 @@ where
     }
 
     fn read_imu(&mut self, t_us: u64) -> Result<ImuSample, SensorFault> {
-        self.read_imu_inner(t_us)
-    }
-
-    fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
-        self.read_polarization_inner(t_us, unit)
-    }
-
-    fn read_depth(&mut self, t_us: u64, water_density_kgm3: f32) -> Result<DepthSample, SensorFault> {
-        self.read_depth_inner(t_us, water_density_kgm3)
-    }
-}
-
-impl<SPI, I2C> HeadSuite<SPI, I2C>
-where
-    SPI: SpiDevice,
-    SPI::Error: BusErrorKind,
-    I2C: I2c,
-    I2C::Error: BusErrorKind,
-{
-    fn service_depth(&mut self, t_us: u64) {
-        if self.depth_ready {
-            match self.depth.poll(t_us) {
-                Ok(Some(r)) => {
-                    self.depth_error = None;
-                    self.last_depth = Some((t_us, DepthSample { t_us, pressure_pa: r.pressure_pa, temp_c: r.temp_c, depth_m: r.depth_m }));
-                }
-                Ok(None) => {}
-                Err(e) => self.depth_error = Some(kind(&e)),
-            }
-        }
-    }
-
-    fn read_imu_inner(&mut self, t_us: u64) -> Result<ImuSample, SensorFault> {
         let fault = |kind| SensorFault { source: FaultSource::Imu, kind };
         if !self.imu_ready {
             // Retry the bring-up (e.g. after a bus glitch at boot).
@@ -180,7 +160,7 @@ where
         Ok(ImuSample { t_us, gyro_radps: r.gyro_radps, accel_mps2: r.accel_mps2, temp_c: r.temp_c })
     }
 
-    fn read_polarization_inner(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
+    fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
         let fault = |kind| SensorFault { source: FaultSource::Polarization { unit }, kind };
         let Some((t_scan, counts, errors)) = &self.scan else { return Err(fault(FaultKind::BusTimeout)) };
         if t_us.saturating_sub(*t_scan) > SCAN_MAX_AGE_US {
@@ -192,7 +172,7 @@ where
         counts.get(usize::from(unit)).copied().ok_or(fault(FaultKind::BusOther))
     }
 
-    fn read_depth_inner(&mut self, t_us: u64, water_density_kgm3: f32) -> Result<DepthSample, SensorFault> {
+    fn read_depth(&mut self, t_us: u64, water_density_kgm3: f32) -> Result<DepthSample, SensorFault> {
         let fault = |kind| SensorFault { source: FaultSource::Depth, kind };
         self.depth.params.water_density_kgm3 = water_density_kgm3;
         if !self.depth_ready {
