@@ -36,6 +36,20 @@ pub fn gauge_depth(imu: &ImuState, cfg: &DepthConfig) -> f64 {
     imu.pos_w_m.z + (imu.rot * cfg.lever_b_m).z
 }
 
+/// Adaptive scalar measurement noise starting at `sigma^2`, bounded to `[1e-2, 1e4]` times that,
+/// forgetting factor `alpha` (clamped into `[0, 1)`; a NaN falls back to 0.98). Shared by the
+/// depth and sonar updates.
+pub(crate) fn scalar_noise(sigma: f64, alpha: f64) -> AdaptiveNoise<f64, 1> {
+    let r0 = sigma * sigma;
+    AdaptiveNoise::new(Matrix1::new(r0), alpha.clamp(0.0, 0.999_999), r0 * 1e-2, r0 * 1e4).unwrap_or(AdaptiveNoise {
+        r: Matrix1::new(r0),
+        alpha: 0.98,
+        r_min: r0 * 1e-2,
+        r_max: r0 * 1e4,
+        steps: 0,
+    })
+}
+
 pub struct DepthUpdater {
     pub cfg: DepthConfig,
     /// Reading minus predicted gauge depth at initialization.
@@ -47,14 +61,7 @@ pub struct DepthUpdater {
 
 impl DepthUpdater {
     pub fn new(cfg: DepthConfig) -> Self {
-        let r0 = cfg.sigma_m * cfg.sigma_m;
-        let noise = AdaptiveNoise::new(Matrix1::new(r0), cfg.alpha.clamp(0.0, 0.999_999), r0 * 1e-2, r0 * 1e4).unwrap_or(AdaptiveNoise {
-            r: Matrix1::new(r0),
-            alpha: 0.98,
-            r_min: r0 * 1e-2,
-            r_max: r0 * 1e4,
-            steps: 0,
-        });
+        let noise = scalar_noise(cfg.sigma_m, cfg.alpha);
         Self { cfg, reference: None, noise, used: 0, gated: 0 }
     }
 

@@ -135,14 +135,7 @@ pub struct SonarUpdater {
 
 impl SonarUpdater {
     pub fn new(cfg: SonarConfig) -> Self {
-        let r0 = cfg.sigma_mps * cfg.sigma_mps;
-        let noise = AdaptiveNoise::new(Matrix1::new(r0), cfg.alpha.clamp(0.0, 0.999_999), r0 * 1e-2, r0 * 1e4).unwrap_or(AdaptiveNoise {
-            r: Matrix1::new(r0),
-            alpha: 0.98,
-            r_min: r0 * 1e-2,
-            r_max: r0 * 1e4,
-            steps: 0,
-        });
+        let noise = super::depth::scalar_noise(cfg.sigma_mps, cfg.alpha);
         Self { cfg, noise, used: 0, gated: 0 }
     }
 
