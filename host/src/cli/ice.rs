@@ -14,9 +14,10 @@ use serde_json::json;
 use super::Format;
 use crate::ice::data::Dataset;
 use crate::ice::eval::evaluate;
+use crate::ice::frontend::TrackerConfig;
 use crate::ice::montecarlo::{RPE_LENGTHS_M, RunResult, Variant, mean_max, run_seed};
 use crate::ice::odometry::{self, OdometryConfig};
-use crate::ice::sim::{SimConfig, simulate};
+use crate::ice::sim::{SimConfig, simulate, write_stereo_images};
 use crate::ice::sonar;
 
 #[derive(Debug, clap::Args)]
@@ -50,6 +51,17 @@ pub struct Args {
     pub no_depth: bool,
     #[arg(long)]
     pub no_adaptive: bool,
+    /// Simulated runs: stereo observations from rendered images through the FAST + KLT front end
+    /// (slower: about 0.1 s per frame) instead of synthetic feature tracks. With --write, the
+    /// images are written (stereo/*.png + stereo.csv) instead of tracks.csv.
+    #[arg(long)]
+    pub images: bool,
+    /// Front end: skip the dark-channel dehazing.
+    #[arg(long)]
+    pub no_dehaze: bool,
+    /// Front end: do not undo the flat-port refraction (treat the image as a pinhole in water).
+    #[arg(long)]
+    pub no_refraction: bool,
     #[arg(long)]
     pub quiet: bool,
 }
@@ -59,8 +71,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     base.use_sonar &= !args.no_sonar;
     base.use_depth &= !args.no_depth;
     base.adaptive &= !args.no_adaptive;
+    let mut tracker = TrackerConfig::default();
+    if args.no_dehaze {
+        tracker.dehaze = None;
+    }
+    tracker.refraction &= !args.no_refraction;
+    let sim_at = |seed: u64| SimConfig { seed, distance_m: args.distance_m, images: args.images, tracker, ..SimConfig::default() };
     if let Some(dir) = &args.input {
-        let data = Dataset::read_dir(dir)?;
+        let mut data = Dataset::read_dir(dir)?;
+        data.track_images(tracker)?;
         let (est, stats) = odometry::run(&data, &base, &data.cam)?;
         let metrics = (!data.truth.is_empty()).then(|| evaluate(&est, &data.truth, &RPE_LENGTHS_M));
         if let Some(out) = &args.out {
@@ -73,10 +92,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 let _ = writeln!(s, "{:.6},{},{},{},{},{},{},{},{},{},{}", e.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, sd(0), sd(1), sd(2));
             }
             std::fs::write(out.join("trajectory.csv"), s)?;
-            std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&json!({"stats": stats, "metrics": metrics}))?)?;
+            std::fs::write(
+                out.join("metrics.json"),
+                serde_json::to_string_pretty(&json!({"stats": stats, "frontend": data.frontend, "metrics": metrics}))?,
+            )?;
         }
         match format {
-            Format::Json => println!("{}", json!({"poses": est.len(), "stats": stats, "metrics": metrics})),
+            Format::Json => println!("{}", json!({"poses": est.len(), "stats": stats, "frontend": data.frontend, "metrics": metrics})),
             Format::Text => {
                 println!(
                     "{} poses; {} features used, {} gated; depth {} used; sonar {} used",
@@ -86,6 +108,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                     stats.depth_used,
                     stats.sonar_used
                 );
+                if let Some(f) = &data.frontend {
+                    println!(
+                        "front end: {} frames, {:.1} observations per frame, {} features started, {} lost",
+                        f.frames,
+                        f.observations as f64 / f.frames.max(1) as f64,
+                        f.started,
+                        f.lost
+                    );
+                }
                 if let Some(m) = metrics {
                     println!(
                         "drift {:.3} % of {:.1} m, ATE {:.3} m / {:.3} deg, NEES ori {:.2} pos {:.2}",
@@ -104,9 +135,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     }
     let variants: Vec<Variant> = if args.ablations { Variant::ALL.to_vec() } else { vec![Variant::Full] };
     if let Some(dir) = &args.write {
-        let sim = SimConfig { seed: args.seed, distance_m: args.distance_m, ..SimConfig::default() };
-        let mut data = simulate(&sim);
+        let sim = sim_at(args.seed);
+        let mut data = simulate(&SimConfig { images: false, ..sim });
         data.sonar_velocity = sonar::velocities(&data.sonar_frames, &base.sonar);
+        if args.images {
+            // The images stand in for the tracks: --input runs the front end on them.
+            data.frames.clear();
+            let _ = std::fs::remove_file(dir.join("tracks.csv"));
+            write_stereo_images(&sim, &data.truth, dir)?;
+        }
         data.write_dir(dir)?;
     }
     let pb = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(args.runs) };
@@ -115,8 +152,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     }
     let mut all: Vec<RunResult> = Vec::new();
     for i in 0..args.runs {
-        let sim = SimConfig { seed: args.seed + i, distance_m: args.distance_m, ..SimConfig::default() };
-        all.extend(run_seed(&sim, &base, &variants)?);
+        all.extend(run_seed(&sim_at(args.seed + i), &base, &variants)?);
         pb.inc(1);
     }
     pb.finish_and_clear();
@@ -145,7 +181,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match format {
         Format::Json => println!("{}", json!({ "summary": summary })),
         Format::Text => {
-            println!("{} seeded runs of {:.0} m (mean [max] over runs)", args.runs, args.distance_m);
+            let source = if args.images { "rendered stereo images, FAST + KLT front end" } else { "synthetic feature tracks" };
+            println!("{} seeded runs of {:.0} m, {source} (mean [max] over runs)", args.runs, args.distance_m);
             println!(
                 "{:<14} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                 "variant", "drift %", "ATE m", "ATE deg", "RPE50 m", "RPE100 m", "NEES ori", "NEES pos"

@@ -2,14 +2,15 @@
 //! phase correlation with a DFT-upsampled sub-pixel peak (`ice::phasecorr`, the sonar-velocity
 //! step of the under-ice odometry). Colour images are converted to luma.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use serde_json::json;
 
 use super::Format;
-use crate::ice::phasecorr::{Gray, PhaseCorrelator, Refinement};
+use crate::ice::data::read_png_gray;
+use crate::ice::phasecorr::{PhaseCorrelator, Refinement};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -26,34 +27,6 @@ pub struct Args {
     /// Time the registration: repeat it N times (one core) and report the mean time per pair.
     #[arg(long, default_value_t = 0)]
     pub time_repeat: u32,
-}
-
-/// A PNG as a grey image (luma 0.299 R + 0.587 G + 0.114 B for colour), samples scaled to [0, 1].
-pub fn read_png_gray(path: &Path) -> Result<Gray> {
-    let file = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
-    decoder.set_transformations(png::Transformations::EXPAND);
-    let mut reader = decoder.read_info().with_context(|| format!("{} is not a readable PNG", path.display()))?;
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader.next_frame(&mut buf).with_context(|| format!("decoding {}", path.display()))?;
-    let (w, h) = (info.width as usize, info.height as usize);
-    let channels = info.color_type.samples();
-    let sample = |i: usize| -> f64 {
-        match info.bit_depth {
-            png::BitDepth::Sixteen => u16::from_be_bytes([buf[2 * i], buf[2 * i + 1]]) as f64 / 65535.0,
-            _ => buf[i] as f64 / 255.0,
-        }
-    };
-    let mut data = Vec::with_capacity(w * h);
-    for p in 0..w * h {
-        let base = p * channels;
-        data.push(match channels {
-            1 | 2 => sample(base),
-            3 | 4 => 0.299 * sample(base) + 0.587 * sample(base + 1) + 0.114 * sample(base + 2),
-            n => bail!("{}: unsupported PNG with {n} channels", path.display()),
-        });
-    }
-    Ok(Gray::new(h, w, data)?)
 }
 
 /// CPU time of this process, seconds.

@@ -7,8 +7,10 @@
 //!   images, as `ice::sonar::velocities` makes them),
 //! - `camera.json`: the [`StereoCamera`], `meta.json`: `{"still_s": ..}`,
 //! - `truth.csv` (optional): `t_s,qw,qx,qy,qz,x,y,z,vx,vy,vz` (body->world quaternion, NED).
+//! - `stereo.csv` (instead of `tracks.csv`): `t_s,left,right` with PNG paths relative to the
+//!   directory; the image front end (`frontend::StereoTracker`) makes the tracks from them.
 //!
-//! The back end therefore runs without images (feature tracks from a file or the simulator).
+//! The back end therefore runs with or without images (feature tracks from a file or the simulator).
 //! Times are written with 1 us resolution, so a written and re-read simulation is not bit-identical
 //! to the in-memory one (the estimates agree to millimetres, `tests/ice_sim.rs`).
 
@@ -16,9 +18,11 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
+use image::GrayImage;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3, Vector4};
 
 use super::camera::{StereoCamera, StereoObs};
+use super::frontend::{FrontendStats, StereoTracker, TrackerConfig};
 use super::phasecorr::Gray;
 use super::propagation::ImuSample;
 use super::sonar::SonarVelocity;
@@ -56,6 +60,10 @@ pub struct Dataset {
     pub cam: StereoCamera,
     /// The vehicle floats still for the first `still_s` seconds (static initialization).
     pub still_s: f64,
+    /// Image front end counters when the frames came from images.
+    pub frontend: Option<FrontendStats>,
+    /// Stereo image pairs (`stereo.csv`) still to be tracked: `(t_s, left, right)`.
+    pub stereo: Vec<(f64, std::path::PathBuf, std::path::PathBuf)>,
 }
 
 fn parse_rows(path: &Path, min_cols: usize) -> Result<Vec<Vec<f64>>> {
@@ -89,7 +97,9 @@ impl Dataset {
             bail!("imu.csv: timestamps must increase strictly");
         }
         let mut frames: Vec<Frame> = Vec::new();
-        for r in parse_rows(&dir.join("tracks.csv"), 7)? {
+        let stereo = if !dir.join("tracks.csv").exists() && dir.join("stereo.csv").exists() { read_stereo_list(dir)? } else { Vec::new() };
+        let tracks = if stereo.is_empty() { parse_rows(&dir.join("tracks.csv"), 7)? } else { Vec::new() };
+        for r in tracks {
             let fid = r[1] as u64;
             let z = Vector4::new(r[3], r[4], r[5], r[6]);
             match frames.last_mut() {
@@ -123,7 +133,29 @@ impl Dataset {
         let meta: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("meta.json")).context("reading meta.json")?).context("meta.json")?;
         let still_s = meta.get("still_s").and_then(|v| v.as_f64()).context("meta.json: still_s missing")?;
-        Ok(Self { imu, frames, depth, sonar_frames: Vec::new(), sonar_velocity, truth, cam, still_s })
+        Ok(Self { imu, frames, depth, sonar_frames: Vec::new(), sonar_velocity, truth, cam, still_s, frontend: None, stereo })
+    }
+
+    /// Run the image front end over the stereo pairs of `stereo.csv` (no-op without them): the
+    /// frames are replaced by the tracked observations. A missing or unreadable image is an error.
+    pub fn track_images(&mut self, cfg: TrackerConfig) -> Result<()> {
+        if self.stereo.is_empty() {
+            return Ok(());
+        }
+        let mut tracker = StereoTracker::new(self.cam, cfg);
+        let mut frames = Vec::with_capacity(self.stereo.len());
+        for (i, (t_s, l, r)) in self.stereo.iter().enumerate() {
+            let (left, right) = (read_png_u8(l)?, read_png_u8(r)?);
+            let (w, h) = (self.cam.width_px.round() as u32, self.cam.height_px.round() as u32);
+            if left.dimensions() != (w, h) || right.dimensions() != (w, h) {
+                bail!("{}: image is {:?}, camera.json says {w}x{h}", l.display(), left.dimensions());
+            }
+            frames.push(Frame { t_s: *t_s, frame_id: i as u64, obs: tracker.process(&left, &right) });
+        }
+        self.frames = frames;
+        self.frontend = Some(tracker.stats);
+        self.stereo.clear();
+        Ok(())
     }
 
     pub fn write_dir(&self, dir: &Path) -> Result<()> {
@@ -140,7 +172,9 @@ impl Dataset {
                 let _ = writeln!(s, "{:.6},{},{},{:e},{:e},{:e},{:e}", f.t_s, f.frame_id, id, z[0], z[1], z[2], z[3]);
             }
         }
-        std::fs::write(dir.join("tracks.csv"), s)?;
+        if self.frames.iter().any(|f| !f.obs.is_empty()) || !dir.join("stereo.csv").exists() {
+            std::fs::write(dir.join("tracks.csv"), s)?;
+        }
         let mut s = String::from("t_s,depth_m\n");
         for d in &self.depth {
             let _ = writeln!(s, "{:.6},{:.6}", d.t_s, d.depth_m);
@@ -166,4 +200,69 @@ impl Dataset {
         std::fs::write(dir.join("meta.json"), serde_json::json!({"still_s": self.still_s}).to_string())?;
         Ok(())
     }
+}
+
+fn read_stereo_list(dir: &Path) -> Result<Vec<(f64, std::path::PathBuf, std::path::PathBuf)>> {
+    let path = dir.join("stereo.csv");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1) {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if line.trim().is_empty() {
+            continue;
+        }
+        let [t, l, r] = f[..] else { bail!("{}:{}: expected t_s,left,right", path.display(), i + 1) };
+        let t: f64 =
+            t.parse().ok().filter(|t: &f64| t.is_finite()).with_context(|| format!("{}:{}: bad time {t:?}", path.display(), i + 1))?;
+        if out.last().is_some_and(|p: &(f64, _, _)| p.0 >= t) {
+            bail!("{}:{}: times must increase", path.display(), i + 1);
+        }
+        out.push((t, dir.join(l), dir.join(r)));
+    }
+    Ok(out)
+}
+
+fn read_png_u8(path: &Path) -> Result<GrayImage> {
+    let g = read_png_gray(path)?;
+    let data = g.data.iter().map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8).collect();
+    GrayImage::from_raw(g.cols as u32, g.rows as u32, data).context("image size")
+}
+
+/// Write an 8-bit grey PNG.
+pub fn write_png_u8(path: &Path, img: &GrayImage) -> Result<()> {
+    let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), img.width(), img.height());
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header()?;
+    w.write_image_data(img.as_raw())?;
+    Ok(())
+}
+
+/// A PNG as a grey image (luma 0.299 R + 0.587 G + 0.114 B for colour), samples scaled to [0, 1].
+pub fn read_png_gray(path: &Path) -> Result<Gray> {
+    let file = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().with_context(|| format!("{} is not a readable PNG", path.display()))?;
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).with_context(|| format!("decoding {}", path.display()))?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let channels = info.color_type.samples();
+    let sample = |i: usize| -> f64 {
+        match info.bit_depth {
+            png::BitDepth::Sixteen => u16::from_be_bytes([buf[2 * i], buf[2 * i + 1]]) as f64 / 65535.0,
+            _ => buf[i] as f64 / 255.0,
+        }
+    };
+    let mut data = Vec::with_capacity(w * h);
+    for p in 0..w * h {
+        let base = p * channels;
+        data.push(match channels {
+            1 | 2 => sample(base),
+            3 | 4 => 0.299 * sample(base) + 0.587 * sample(base + 1) + 0.114 * sample(base + 2),
+            n => bail!("{}: unsupported PNG with {n} channels", path.display()),
+        });
+    }
+    Ok(Gray::new(h, w, data)?)
 }

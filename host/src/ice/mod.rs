@@ -22,6 +22,7 @@ pub mod msckf;
 pub mod odometry;
 pub mod phasecorr;
 pub mod propagation;
+pub mod render;
 pub mod sim;
 pub mod sonar;
 pub mod state;

@@ -4,6 +4,7 @@
 use anyhow::Result;
 
 use super::eval::{Metrics, evaluate};
+use super::frontend::FrontendStats;
 use super::odometry::{OdometryConfig, RunStats, run};
 use super::sim::{SimConfig, simulate};
 use super::sonar;
@@ -51,11 +52,14 @@ pub struct RunResult {
     pub variant: Variant,
     pub metrics: Metrics,
     pub stats: RunStats,
+    /// Image front end counters (runs on rendered images only).
+    pub frontend: Option<FrontendStats>,
 }
 
 pub const RPE_LENGTHS_M: [f64; 2] = [50.0, 100.0];
 
-/// Simulate `seed`, derive the sonar velocities from the images, and run each variant.
+/// Simulate `seed` (with `sim.images`: render the stereo pairs and track them once for all
+/// variants), derive the sonar velocities from the sonar images, and run each variant.
 pub fn run_seed(sim: &SimConfig, base: &OdometryConfig, variants: &[Variant]) -> Result<Vec<RunResult>> {
     let mut data = simulate(sim);
     data.sonar_velocity = sonar::velocities(&data.sonar_frames, &base.sonar);
@@ -64,7 +68,7 @@ pub fn run_seed(sim: &SimConfig, base: &OdometryConfig, variants: &[Variant]) ->
         let cfg = v.config(base);
         let (est, stats) = run(&data, &cfg, &data.cam)?;
         let metrics = evaluate(&est, &data.truth, &RPE_LENGTHS_M);
-        out.push(RunResult { seed: sim.seed, variant: v, metrics, stats });
+        out.push(RunResult { seed: sim.seed, variant: v, metrics, stats, frontend: data.frontend });
     }
     Ok(out)
 }

@@ -6,6 +6,10 @@
 //! depth gauge (offset, white noise that doubles in the middle third of the run, rare spikes,
 //! timestamps between IMU samples).
 //!
+//! With `images` set, the stereo observations come from the image front end instead: stereo
+//! pairs of the textured ice rendered through the flat port in hazy water (`render`), tracked
+//! with FAST + KLT (`frontend::StereoTracker`). The other sensors are the same draws either way.
+//!
 //! Truth kinematics are sampled at the IMU rate with `R_k+1 = R_k Exp(w_k dt)` exactly, and the
 //! IMU reports `w_k` and `f_k = R_k^T (a_k - g)`.
 
@@ -19,8 +23,10 @@ use rand_distr::{Distribution, Normal};
 use super::camera::StereoCamera;
 use super::data::{Dataset, DepthReading, Frame, TruthSample};
 use super::depth::DepthConfig;
+use super::frontend::{FrontendStats, StereoTracker, TrackerConfig};
 use super::phasecorr::Gray;
 use super::propagation::{ImuNoise, ImuSample, gravity_w};
+use super::render::{StereoRenderer, WaterConfig};
 use super::sonar::SonarConfig;
 use crate::fgo::so3;
 
@@ -46,6 +52,11 @@ pub struct SimConfig {
     pub depth: DepthConfig,
     /// Render sonar images (off: no sonar data at all).
     pub sonar_images: bool,
+    /// Stereo observations from rendered images through the FAST + KLT front end (off: synthetic
+    /// feature tracks with `cam.sigma_px` noise, mismatches and track losses).
+    pub images: bool,
+    pub water: WaterConfig,
+    pub tracker: TrackerConfig,
 }
 
 impl Default for SimConfig {
@@ -69,6 +80,9 @@ impl Default for SimConfig {
             sonar: SonarConfig::default(),
             depth: DepthConfig::default(),
             sonar_images: true,
+            images: false,
+            water: WaterConfig::default(),
+            tracker: TrackerConfig::default(),
         }
     }
 }
@@ -321,5 +335,49 @@ pub fn simulate(cfg: &SimConfig) -> Dataset {
         }
     }
 
-    Dataset { imu, frames, depth, sonar_frames, sonar_velocity: Vec::new(), truth, cam, still_s: cfg.still_s }
+    let (frames, frontend) = if cfg.images {
+        let (f, s) = image_frames(cfg, &truth);
+        (f, Some(s))
+    } else {
+        (frames, None)
+    };
+    Dataset { imu, frames, depth, sonar_frames, sonar_velocity: Vec::new(), truth, cam, still_s: cfg.still_s, frontend, stereo: Vec::new() }
+}
+
+/// Truth samples at the camera times (every `imu_hz / cam_hz`-th sample, as the synthetic tracks).
+pub fn camera_samples<'a>(cfg: &SimConfig, truth: &'a [TruthSample]) -> impl Iterator<Item = (u64, &'a TruthSample)> {
+    let every = ((cfg.imu_hz / cfg.cam_hz).round() as usize).max(1);
+    truth.iter().step_by(every).enumerate().map(|(i, t)| (i as u64, t))
+}
+
+/// Render the stereo pair at every camera time into `dir/stereo/` as PNGs and list them in
+/// `dir/stereo.csv` (the `--input` format's image form, see `data`).
+pub fn write_stereo_images(cfg: &SimConfig, truth: &[TruthSample], dir: &std::path::Path) -> anyhow::Result<()> {
+    use anyhow::Context as _;
+    let sub = dir.join("stereo");
+    std::fs::create_dir_all(&sub).with_context(|| format!("creating {}", sub.display()))?;
+    let renderer = StereoRenderer::new(cfg.cam, cfg.water, cfg.seed);
+    let mut list = String::from("t_s,left,right\n");
+    for (fi, tr) in camera_samples(cfg, truth) {
+        let (left, right) = renderer.render_pair(&tr.rot, &tr.pos_w_m, cfg.seed.wrapping_mul(0x1AA6_E5E5) ^ fi);
+        let (l, r) = (format!("stereo/{fi:06}_l.png"), format!("stereo/{fi:06}_r.png"));
+        super::data::write_png_u8(&dir.join(&l), &left)?;
+        super::data::write_png_u8(&dir.join(&r), &right)?;
+        list.push_str(&format!("{:.6},{l},{r}\n", tr.t_s));
+    }
+    std::fs::write(dir.join("stereo.csv"), list).with_context(|| format!("writing {}", dir.join("stereo.csv").display()))?;
+    Ok(())
+}
+
+/// Render the stereo pair at every camera time and run the front end over them.
+pub fn image_frames(cfg: &SimConfig, truth: &[TruthSample]) -> (Vec<Frame>, FrontendStats) {
+    let renderer = StereoRenderer::new(cfg.cam, cfg.water, cfg.seed);
+    let mut tracker = StereoTracker::new(cfg.cam, cfg.tracker);
+    let mut frames = Vec::new();
+    for (fi, tr) in camera_samples(cfg, truth) {
+        let (left, right) = renderer.render_pair(&tr.rot, &tr.pos_w_m, cfg.seed.wrapping_mul(0x1AA6_E5E5) ^ fi);
+        let obs = tracker.process(&left, &right);
+        frames.push(Frame { t_s: tr.t_s, frame_id: fi, obs });
+    }
+    (frames, tracker.stats)
 }
