@@ -172,6 +172,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             "rpe_100m_m": rpe(1),
             "nees_ori": f(&|r| r.metrics.nees_ori),
             "nees_pos": f(&|r| r.metrics.nees_pos),
+            "observations_per_frame": f(&|r| r.frontend.map_or(f64::NAN, |s| s.observations as f64 / s.frames.max(1) as f64)),
         }));
     }
     if let Some(out) = &args.out {
@@ -202,6 +203,16 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                     c("rpe_100m_m"),
                     c("nees_ori"),
                     c("nees_pos")
+                );
+            }
+            if args.images
+                && let Some(s) = summary.first()
+            {
+                let a = &s["observations_per_frame"];
+                println!(
+                    "front end: {:.1} [{:.1}] stereo observations per frame",
+                    a[0].as_f64().unwrap_or(f64::NAN),
+                    a[1].as_f64().unwrap_or(f64::NAN)
                 );
             }
         }

@@ -6,11 +6,10 @@
 //! projected, gated feature update), [`window`] (pruning rule), [`depth`] and [`sonar`] (one file
 //! per sensor update), [`phasecorr`], [`odometry`] (the event loop), [`sim`], [`data`] (files),
 //! [`eval`] (ATE / RPE / NEES), [`montecarlo`] (seeded runs and ablations), [`frontend`] (dehazing,
-//! flat-port refraction).
+//! flat-port refraction, FAST + KLT stereo tracker), [`render`] (stereo images of the ice for it).
 //!
-//! Not built yet: the FAST + KLT image tracker (the back end takes feature tracks from the
-//! simulator or a file), and the spec's previous-image-based clone augmentation (D3): every clone
-//! is augmented from the IMU pose; the pruning rule's tracking-quality test is implemented.
+//! The back end takes stereo observations from the image front end (rendered or `stereo.csv`
+//! images) or as feature tracks (the simulator's synthetic tracks, or `tracks.csv`).
 
 pub mod camera;
 pub mod data;
