@@ -56,6 +56,12 @@ pub struct Args {
     /// images are written (stereo/*.png + stereo.csv) instead of tracks.csv.
     #[arg(long)]
     pub images: bool,
+    /// Simulated runs: the camera sees nothing (turbid water) for this many seconds, starting at
+    /// --outage-start-s (so the sonar and depth carry the odometry).
+    #[arg(long, default_value_t = 0.0)]
+    pub outage_s: f64,
+    #[arg(long, default_value_t = 100.0)]
+    pub outage_start_s: f64,
     /// Front end: skip the dark-channel dehazing.
     #[arg(long)]
     pub no_dehaze: bool,
@@ -76,7 +82,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         tracker.dehaze = None;
     }
     tracker.refraction &= !args.no_refraction;
-    let sim_at = |seed: u64| SimConfig { seed, distance_m: args.distance_m, images: args.images, tracker, ..SimConfig::default() };
+    let outage = (args.outage_s > 0.0).then_some((args.outage_start_s, args.outage_s));
+    let sim_at = |seed: u64| SimConfig {
+        seed,
+        distance_m: args.distance_m,
+        images: args.images,
+        tracker,
+        vision_outage: outage,
+        ..SimConfig::default()
+    };
     if let Some(dir) = &args.input {
         let mut data = Dataset::read_dir(dir)?;
         data.track_images(tracker)?;
@@ -133,6 +147,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     if args.runs == 0 || args.distance_m.is_nan() || args.distance_m <= 0.0 {
         bail!("--runs must be >= 1 and --distance-m > 0");
     }
+    if !(args.outage_s >= 0.0 && args.outage_start_s.is_finite()) {
+        bail!("--outage-s must be >= 0 and --outage-start-s finite");
+    }
     let variants: Vec<Variant> = if args.ablations { Variant::ALL.to_vec() } else { vec![Variant::Full] };
     if let Some(dir) = &args.write {
         let sim = sim_at(args.seed);
@@ -183,7 +200,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         Format::Json => println!("{}", json!({ "summary": summary })),
         Format::Text => {
             let source = if args.images { "rendered stereo images, FAST + KLT front end" } else { "synthetic feature tracks" };
-            println!("{} seeded runs of {:.0} m, {source} (mean [max] over runs)", args.runs, args.distance_m);
+            let outage = outage.map_or(String::new(), |(a, d)| format!(", vision outage {d:.0} s from {a:.0} s"));
+            println!("{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs)", args.runs, args.distance_m);
             println!(
                 "{:<14} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                 "variant", "drift %", "ATE m", "ATE deg", "RPE50 m", "RPE100 m", "NEES ori", "NEES pos"

@@ -57,6 +57,9 @@ pub struct SimConfig {
     pub images: bool,
     pub water: WaterConfig,
     pub tracker: TrackerConfig,
+    /// Vision outage `(start_s, duration_s)`: the camera sees only turbid water (no features),
+    /// so the sonar and the depth gauge carry the odometry through it.
+    pub vision_outage: Option<(f64, f64)>,
 }
 
 impl Default for SimConfig {
@@ -83,6 +86,7 @@ impl Default for SimConfig {
             images: false,
             water: WaterConfig::default(),
             tracker: TrackerConfig::default(),
+            vision_outage: None,
         }
     }
 }
@@ -254,6 +258,9 @@ pub fn simulate(cfg: &SimConfig) -> Dataset {
             }
             obs.push(((id >> 8) * 64 + (*g % 64), zn));
         }
+        if in_outage(cfg, tr.t_s) {
+            obs.clear();
+        }
         frames.push(Frame { t_s: tr.t_s, frame_id: fi as u64, obs });
     }
 
@@ -344,6 +351,10 @@ pub fn simulate(cfg: &SimConfig) -> Dataset {
     Dataset { imu, frames, depth, sonar_frames, sonar_velocity: Vec::new(), truth, cam, still_s: cfg.still_s, frontend, stereo: Vec::new() }
 }
 
+fn in_outage(cfg: &SimConfig, t_s: f64) -> bool {
+    cfg.vision_outage.is_some_and(|(start, len)| t_s >= start && t_s < start + len)
+}
+
 /// Truth samples at the camera times (every `imu_hz / cam_hz`-th sample, as the synthetic tracks).
 pub fn camera_samples<'a>(cfg: &SimConfig, truth: &'a [TruthSample]) -> impl Iterator<Item = (u64, &'a TruthSample)> {
     let every = ((cfg.imu_hz / cfg.cam_hz).round() as usize).max(1);
@@ -375,7 +386,13 @@ pub fn image_frames(cfg: &SimConfig, truth: &[TruthSample]) -> (Vec<Frame>, Fron
     let mut tracker = StereoTracker::new(cfg.cam, cfg.tracker);
     let mut frames = Vec::new();
     for (fi, tr) in camera_samples(cfg, truth) {
-        let (left, right) = renderer.render_pair(&tr.rot, &tr.pos_w_m, cfg.seed.wrapping_mul(0x1AA6_E5E5) ^ fi);
+        let (left, right) = if in_outage(cfg, tr.t_s) {
+            let (w, h) = renderer.size();
+            let murk = image::GrayImage::from_pixel(w, h, image::Luma([(cfg.water.veiling * 255.0).round().clamp(0.0, 255.0) as u8]));
+            (murk.clone(), murk)
+        } else {
+            renderer.render_pair(&tr.rot, &tr.pos_w_m, cfg.seed.wrapping_mul(0x1AA6_E5E5) ^ fi)
+        };
         let obs = tracker.process(&left, &right);
         frames.push(Frame { t_s: tr.t_s, frame_id: fi, obs });
     }
