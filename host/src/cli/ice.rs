@@ -39,7 +39,8 @@ pub struct Args {
     /// Path length of each simulated run, m.
     #[arg(long, default_value_t = 500.0)]
     pub distance_m: f64,
-    /// Also run the ablations (no sonar, no depth, no adaptivity, IMU only).
+    /// Also run the ablations (no sonar, no depth, no adaptivity, no FEJ, IMU-based augmentation
+    /// only, IMU only).
     #[arg(long)]
     pub ablations: bool,
     /// Write the (first) simulated data set to this directory (then usable with --input).
@@ -203,7 +204,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             let outage = outage.map_or(String::new(), |(a, d)| format!(", vision outage {d:.0} s from {a:.0} s"));
             println!("{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs)", args.runs, args.distance_m);
             println!(
-                "{:<14} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
+                "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                 "variant", "drift %", "ATE m", "ATE deg", "RPE50 m", "RPE100 m", "NEES ori", "NEES pos"
             );
             for s in &summary {
@@ -212,7 +213,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                     format!("{:.3} [{:.3}]", a[0].as_f64().unwrap_or(f64::NAN), a[1].as_f64().unwrap_or(f64::NAN))
                 };
                 println!(
-                    "{:<14} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
+                    "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                     s["variant"].as_str().unwrap_or(""),
                     c("drift_pct"),
                     c("ate_pos_m"),

@@ -25,6 +25,12 @@ pub struct Metrics {
     pub rpe_m: Vec<(f64, f64)>,
     pub nees_ori: f64,
     pub nees_pos: f64,
+    /// Position NEES split: horizontal (2-dof, consistent = 2) and vertical (1-dof, consistent = 1),
+    /// each from its own marginal covariance block.
+    pub nees_pos_h: f64,
+    pub nees_pos_z: f64,
+    /// 3-dof position NEES averaged over each quarter of the run (growth = overconfidence building up).
+    pub nees_pos_quarters: [f64; 4],
     pub poses: usize,
 }
 
@@ -48,6 +54,8 @@ pub fn evaluate(est: &[EstPose], truth: &[TruthSample], rpe_lengths_m: &[f64]) -
     }
     let n = pairs.len() as f64;
     let (mut se_p, mut se_r, mut nees_r, mut nees_p) = (0.0, 0.0, 0.0, 0.0);
+    let (mut nees_h, mut nees_z) = (0.0, 0.0);
+    let (mut q_sum, mut q_cnt) = ([0.0; 4], [0usize; 4]);
     let mut n_nees = 0usize;
     let mut dist = vec![0.0; pairs.len()];
     for (k, (e, r, p)) in pairs.iter().enumerate() {
@@ -59,7 +67,19 @@ pub fn evaluate(est: &[EstPose], truth: &[TruthSample], rpe_lengths_m: &[f64]) -
         let pp = e.cov.fixed_view::<3, 3>(3, 3).into_owned();
         if let (Some(ir), Some(ip)) = (pr.try_inverse(), pp.try_inverse()) {
             nees_r += (dth.transpose() * ir * dth)[(0, 0)];
-            nees_p += (dp.transpose() * ip * dp)[(0, 0)];
+            let np = (dp.transpose() * ip * dp)[(0, 0)];
+            nees_p += np;
+            let q = (4 * k / pairs.len()).min(3);
+            q_sum[q] += np;
+            q_cnt[q] += 1;
+            let ph = pp.fixed_view::<2, 2>(0, 0).into_owned();
+            if let Some(ih) = ph.try_inverse() {
+                let dh = dp.fixed_rows::<2>(0).into_owned();
+                nees_h += (dh.transpose() * ih * dh)[(0, 0)];
+            }
+            if pp[(2, 2)] > 0.0 {
+                nees_z += dp.z * dp.z / pp[(2, 2)];
+            }
             n_nees += 1;
         }
         if k > 0 {
@@ -100,6 +120,9 @@ pub fn evaluate(est: &[EstPose], truth: &[TruthSample], rpe_lengths_m: &[f64]) -
         rpe_m: rpe,
         nees_ori: nees_r / n_nees.max(1) as f64,
         nees_pos: nees_p / n_nees.max(1) as f64,
+        nees_pos_h: nees_h / n_nees.max(1) as f64,
+        nees_pos_z: nees_z / n_nees.max(1) as f64,
+        nees_pos_quarters: std::array::from_fn(|q| if q_cnt[q] > 0 { q_sum[q] / q_cnt[q] as f64 } else { f64::NAN }),
         poses: pairs.len(),
     }
 }
@@ -137,6 +160,10 @@ mod tests {
         assert!((m.rpe_m[0].1 - 0.05).abs() < 1e-12);
         // NEES_pos: mean of (0.01 i)^2 = 1e-4 * 385 / 11.
         assert!((m.nees_pos - 1e-4 * 35.0).abs() < 1e-12);
+        // All the error is horizontal (x): the split puts it there.
+        assert!((m.nees_pos_h - 1e-4 * 35.0).abs() < 1e-12 && m.nees_pos_z == 0.0);
+        // Quarters of 11 poses: k * 4 / 11 -> {0,1,2}, {3,4,5}, {6,7,8}, {9,10}.
+        assert!((m.nees_pos_quarters[3] - 1e-4 * (81.0 + 100.0) / 2.0).abs() < 1e-12);
         assert_eq!(m.nees_ori, 0.0);
     }
 }

@@ -1,5 +1,5 @@
 //! Seeded simulated runs of the odometry and its ablations (no sonar, no depth, no adaptivity,
-//! IMU only), evaluated with [`super::eval`].
+//! no first-estimate Jacobians, IMU-based clone augmentation only, IMU only), evaluated with [`super::eval`].
 
 use anyhow::Result;
 
@@ -15,17 +15,31 @@ pub enum Variant {
     NoSonar,
     NoDepth,
     NoAdaptivity,
+    /// Plain EKF Jacobians (no first estimates).
+    NoFej,
+    /// Every clone augmented from the IMU pose (no previous-image-based augmentation).
+    ImuAugmentation,
     ImuOnly,
 }
 
 impl Variant {
-    pub const ALL: [Variant; 5] = [Variant::Full, Variant::NoSonar, Variant::NoDepth, Variant::NoAdaptivity, Variant::ImuOnly];
+    pub const ALL: [Variant; 7] = [
+        Variant::Full,
+        Variant::NoSonar,
+        Variant::NoDepth,
+        Variant::NoAdaptivity,
+        Variant::NoFej,
+        Variant::ImuAugmentation,
+        Variant::ImuOnly,
+    ];
     pub fn name(self) -> &'static str {
         match self {
             Self::Full => "full",
             Self::NoSonar => "no-sonar",
             Self::NoDepth => "no-depth",
             Self::NoAdaptivity => "no-adaptivity",
+            Self::NoFej => "no-fej",
+            Self::ImuAugmentation => "imu-augmentation",
             Self::ImuOnly => "imu-only",
         }
     }
@@ -36,6 +50,8 @@ impl Variant {
             Self::NoSonar => c.use_sonar = false,
             Self::NoDepth => c.use_depth = false,
             Self::NoAdaptivity => c.adaptive = false,
+            Self::NoFej => c.fej = false,
+            Self::ImuAugmentation => c.augment.previous_image = false,
             Self::ImuOnly => {
                 c.use_camera = false;
                 c.use_depth = false;

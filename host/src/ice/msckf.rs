@@ -56,11 +56,12 @@ pub fn nullspace_project(mut hf: DMatrix<f64>, mut hx: DMatrix<f64>, mut r: DVec
     (hx.rows(k, m - k).into_owned(), r.rows(k, m - k).into_owned())
 }
 
-/// Build the projected residual of one feature. `None` if it cannot be triangulated.
-fn feature_rows(st: &FilterState, cam: &StereoCamera, track: &Track) -> Option<(DMatrix<f64>, DVector<f64>)> {
+/// Build the projected residual of one feature seen by at least `min_obs` clones. `None` if it
+/// cannot be triangulated.
+fn feature_rows(st: &FilterState, cam: &StereoCamera, track: &Track, min_obs: usize) -> Option<(DMatrix<f64>, DVector<f64>)> {
     let idx: Vec<(usize, StereoObs)> =
         track.iter().filter_map(|(fid, z)| st.clones.iter().position(|c| c.frame_id == *fid).map(|i| (i, *z))).collect();
-    if idx.len() < 3 {
+    if idx.len() < min_obs.max(2) {
         return None;
     }
     let obs: Vec<_> = idx.iter().map(|(i, z)| (&st.clones[*i], *z)).collect();
@@ -74,8 +75,11 @@ fn feature_rows(st: &FilterState, cam: &StereoCamera, track: &Track) -> Option<(
         let c = &st.clones[*i];
         let pc = cam.to_cam(&cam.cam_pose(&c.rot, &c.pos_w_m), &pf);
         let h = cam.project(&pc)?;
-        let jo = cam.d_obs_d_pc(&pc);
-        let (jx, jf) = cam.d_pc(&c.rot, &c.pos_w_m, &pf);
+        // Jacobians at the clone's first estimate (FEJ, see `state`), residual at the current one.
+        let (rot_lin, pos_lin) = c.lin(st.fej_enabled);
+        let pc_lin = cam.to_cam(&cam.cam_pose(&rot_lin, &pos_lin), &pf);
+        let jo = cam.d_obs_d_pc(&pc_lin);
+        let (jx, jf) = cam.d_pc(&rot_lin, &pos_lin, &pf);
         hx.view_mut((4 * j, FilterState::clone_offset(*i)), (4, CLONE_DIM)).copy_from(&(jo * jx));
         hf.view_mut((4 * j, 0), (4, 3)).copy_from(&(jo * jf));
         r.rows_mut(4 * j, 4).copy_from(&(z - h));
@@ -86,11 +90,17 @@ fn feature_rows(st: &FilterState, cam: &StereoCamera, track: &Track) -> Option<(
 /// One MSCKF update with the given finished tracks. `confidence` is the chi-square gate's
 /// probability (e.g. 0.95).
 pub fn update(st: &mut FilterState, cam: &StereoCamera, tracks: &[Track], confidence: f64) -> UpdateStats {
+    update_min_obs(st, cam, tracks, confidence, 3)
+}
+
+/// [`update`] for tracks of at least `min_obs` (>= 2) clones: the two-image stereo tracks of the
+/// previous-image-based augmentation (`augment`) use 2.
+pub fn update_min_obs(st: &mut FilterState, cam: &StereoCamera, tracks: &[Track], confidence: f64, min_obs: usize) -> UpdateStats {
     let mut stats = UpdateStats::default();
     let var = cam.sigma_norm().powi(2);
     let mut blocks: Vec<(DMatrix<f64>, DVector<f64>)> = Vec::new();
     for t in tracks {
-        let Some((h0, r0)) = feature_rows(st, cam, t) else {
+        let Some((h0, r0)) = feature_rows(st, cam, t, min_obs) else {
             stats.triangulation_failed += 1;
             continue;
         };

@@ -2,18 +2,22 @@
 //! stereo frames (clone augmentation, feature bookkeeping, MSCKF updates of lost tracks and of
 //! tracks in pruned frames, window pruning two at a time), depth readings and sonar velocities.
 
+#[path = "augment.rs"]
+pub mod augment;
+
 use std::collections::HashMap;
 
 use anyhow::{Result, bail};
 use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3};
 
+use self::augment::{AugmentConfig, estimate_relative_pose, relative_pose_update};
 use super::camera::StereoCamera;
 use super::data::Dataset;
-use super::depth::{DepthConfig, DepthUpdater};
+use super::depth::{DepthConfig, DepthUpdater, robust_reference};
 use super::msckf::{self, Track};
 use super::propagation::{ImuNoise, ImuSample, propagate, static_init};
 use super::sonar::{SonarConfig, SonarUpdater};
-use super::state::{BA, BG, FilterState, IMU_DIM, POS, SCALE, TH, VEL};
+use super::state::{BA, BG, DEPTH_REF, FilterState, IMU_DIM, POS, SCALE, SONAR_BIAS, TH, VEL};
 use super::window::{PoseRef, PruneConfig, select_two_to_prune};
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -30,6 +34,10 @@ pub struct OdometryConfig {
     pub gate: f64,
     /// Tracking is good when at least this fraction of the previous frame's features is tracked.
     pub good_tracking: f64,
+    /// First-estimate Jacobians (off: plain EKF, re-linearized at every estimate).
+    pub fej: bool,
+    /// Clone augmentation: IMU-based, and previous-image-based when tracking is good.
+    pub augment: AugmentConfig,
     pub imu: ImuNoise,
     pub depth: DepthConfig,
     pub sonar: SonarConfig,
@@ -46,6 +54,8 @@ impl Default for OdometryConfig {
             prune: PruneConfig::default(),
             gate: 0.95,
             good_tracking: 0.5,
+            fej: true,
+            augment: AugmentConfig::default(),
             imu: ImuNoise::default(),
             depth: DepthConfig::default(),
             sonar: SonarConfig::default(),
@@ -73,6 +83,14 @@ pub struct RunStats {
     pub sonar_used: usize,
     pub sonar_gated: usize,
     pub prune_kept_baseline: usize,
+    /// Frames whose clone was also tied to the previous image's (stereo relative pose).
+    pub augment_previous_image: usize,
+    /// Frames augmented from the IMU only (first frame, poor tracking, too few inliers, gated).
+    pub augment_imu: usize,
+    /// Of those: tracking good but the stereo increment failed (too few points or inliers) ...
+    pub augment_no_increment: usize,
+    /// ... or was rejected by the update's chi-square gate.
+    pub augment_gated: usize,
     pub final_depth_r_m2: f64,
     pub final_sonar_r_m2ps2: f64,
 }
@@ -98,6 +116,7 @@ fn interp(a: &ImuSample, b: &ImuSample, t: f64) -> ImuSample {
 struct Frontier {
     features: HashMap<u64, Track>,
     prev_ids: Vec<u64>,
+    prev_frame: Option<u64>,
 }
 
 /// Run the odometry over a data set. Returns the pose after each stereo frame (or every 0.2 s
@@ -115,7 +134,10 @@ pub fn run(data: &Dataset, cfg: &OdometryConfig, cam: &StereoCamera) -> Result<(
         p0[(BA + k, BA + k)] = 4e-4;
     }
     p0[(SCALE, SCALE)] = 0.03f64.powi(2);
-    let mut st = FilterState { imu: init, clones: Vec::new(), cov: p0 };
+    p0[(SONAR_BIAS, SONAR_BIAS)] = cfg.sonar.bias_sigma_mps.powi(2);
+    let sb = (cfg.sonar.bias_sigma_mps, cfg.sonar.bias_tau_s);
+    let mut st = FilterState::new(init, p0);
+    st.fej_enabled = cfg.fej;
     let mut dcfg = cfg.depth;
     dcfg.adaptive = cfg.adaptive;
     let mut depth = DepthUpdater::new(dcfg);
@@ -124,25 +146,22 @@ pub fn run(data: &Dataset, cfg: &OdometryConfig, cam: &StereoCamera) -> Result<(
     let mut sonar = SonarUpdater::new(scfg);
     let mut stats = RunStats::default();
     let mut out = Vec::new();
-    let mut fr = Frontier { features: HashMap::new(), prev_ids: Vec::new() };
+    let mut fr = Frontier { features: HashMap::new(), prev_ids: Vec::new(), prev_frame: None };
 
-    // Depth reference: the mean of the readings taken while still (at least one, within 0.5 s of
-    // the initialization otherwise). Its noise is a constant error of every relative depth, so it
-    // goes into the initial vertical-position variance instead of being ignored.
+    // Depth reference: robust mean of the readings taken while still (or the one reading within
+    // 0.5 s of the initialization). Its error is the same in every relative depth: the state
+    // `DEPTH_REF` with the reference's variance as prior (see `depth`).
     if cfg.use_depth {
-        let still_readings: Vec<f64> = data.depth.iter().filter(|d| d.t_s <= st.imu.t_s).map(|d| d.depth_m).collect();
-        let (reference, count) = if still_readings.is_empty() {
+        let mut still_readings: Vec<f64> = data.depth.iter().filter(|d| d.t_s <= st.imu.t_s).map(|d| d.depth_m).collect();
+        if still_readings.is_empty() {
             let near = data.depth.iter().min_by(|a, b| (a.t_s - st.imu.t_s).abs().total_cmp(&(b.t_s - st.imu.t_s).abs()));
-            match near {
-                Some(d) if (d.t_s - st.imu.t_s).abs() < 0.5 => (Some(d.depth_m), 1usize),
-                _ => (None, 0),
+            if let Some(d) = near.filter(|d| (d.t_s - st.imu.t_s).abs() < 0.5) {
+                still_readings.push(d.depth_m);
             }
-        } else {
-            (Some(still_readings.iter().sum::<f64>() / still_readings.len() as f64), still_readings.len())
-        };
-        if let Some(r) = reference {
+        }
+        if let Some((r, var)) = robust_reference(&still_readings, 0.002, cfg.depth.sigma_m) {
             depth.set_reference(r, &st.imu);
-            st.cov[(POS + 2, POS + 2)] += cfg.depth.sigma_m.powi(2) / count as f64;
+            st.cov[(DEPTH_REF, DEPTH_REF)] = var;
         }
     }
     let (mut fi, mut di, mut si) = (0usize, 0usize, 0usize);
@@ -165,13 +184,13 @@ pub fn run(data: &Dataset, cfg: &OdometryConfig, cam: &StereoCamera) -> Result<(
         while cfg.use_camera && fi < data.frames.len() && data.frames[fi].t_s <= b.t_s {
             let f = &data.frames[fi];
             let mid = interp(a, b, f.t_s);
-            propagate(&mut st, &cur, &mid, &cfg.imu);
+            propagate(&mut st, &cur, &mid, &cfg.imu, sb);
             cur = mid;
             process_frame(&mut st, &mut fr, f, cfg, cam, &mut stats);
             out.push(pose_of(&st));
             fi += 1;
         }
-        propagate(&mut st, &cur, b, &cfg.imu);
+        propagate(&mut st, &cur, b, &cfg.imu, sb);
         while di < data.depth.len() && data.depth[di].t_s <= b.t_s {
             if cfg.use_depth {
                 depth.update(&mut st, &prev, data.depth[di].t_s, data.depth[di].depth_m);
@@ -216,6 +235,64 @@ fn process_frame(
     let good = !fr.prev_ids.is_empty() && tracked as f64 >= cfg.good_tracking * fr.prev_ids.len() as f64;
     for (id, z) in &f.obs {
         fr.features.entry(*id).or_default().push((f.frame_id, *z));
+    }
+    // Previous-image-based augmentation when tracking is good (see `augment`): the stereo
+    // increment from the previous image ties the new clone to the previous one; the observations
+    // it used leave their MSCKF tracks so that no observation is used twice.
+    let mut used_previous = false;
+    if cfg.augment.previous_image
+        && good
+        && let Some(prev_fid) = fr.prev_frame
+        && let Some(a) = st.clones.iter().position(|c| c.frame_id == prev_fid)
+    {
+        let (mut prev_obs, mut cur_obs) = (Vec::new(), Vec::new());
+        for (id, z) in &f.obs {
+            if let Some((_, zp)) = fr.features.get(id).and_then(|t| t.iter().find(|(fid, _)| *fid == prev_fid)) {
+                prev_obs.push((*id, *zp));
+                cur_obs.push((*id, *z));
+            }
+        }
+        let (ca, cb) = (&st.clones[a], &st.clones[st.clones.len() - 1]);
+        let prior = augment::predicted_relative_pose(cam, (&ca.rot, &ca.pos_w_m), (&cb.rot, &cb.pos_w_m));
+        match estimate_relative_pose(cam, &prev_obs, &cur_obs, &cfg.augment, Some(prior)) {
+            Ok(m) => {
+                let b = st.clones.len() - 1;
+                let applied = if cfg.augment.explicit_increment {
+                    relative_pose_update(st, cam, a, b, &m, cfg.augment.gate)
+                } else {
+                    // The inliers' observations in both images, features marginalized by the
+                    // null-space projection, linearized at the clones' (first) estimates.
+                    let tracks: Vec<Track> = m
+                        .inliers
+                        .iter()
+                        .filter_map(|id| {
+                            let zp = prev_obs.iter().find(|(i, _)| i == id)?.1;
+                            let zc = cur_obs.iter().find(|(i, _)| i == id)?.1;
+                            Some(vec![(prev_fid, zp), (f.frame_id, zc)])
+                        })
+                        .collect();
+                    // Applied when any feature passed its gate; all inliers' observations are then
+                    // taken out of the MSCKF tracks (the gated ones are lost, never used twice).
+                    msckf::update_min_obs(st, cam, &tracks, cfg.gate, 2).features_used > 0
+                };
+                if applied {
+                    used_previous = true;
+                    for id in &m.inliers {
+                        if let Some(t) = fr.features.get_mut(id) {
+                            t.retain(|(fid, _)| *fid != prev_fid && *fid != f.frame_id);
+                        }
+                    }
+                } else {
+                    stats.augment_gated += 1;
+                }
+            }
+            Err(_) => stats.augment_no_increment += 1,
+        }
+    }
+    if used_previous {
+        stats.augment_previous_image += 1;
+    } else {
+        stats.augment_imu += 1;
     }
     // Tracks lost in this frame.
     let lost: Vec<u64> = fr.features.keys().filter(|k| !ids.contains(k)).copied().collect();
@@ -263,4 +340,5 @@ fn process_frame(
         st.marginalize(&p);
     }
     fr.prev_ids = ids;
+    fr.prev_frame = Some(f.frame_id);
 }

@@ -2,10 +2,18 @@
 //! integrated with 4th-order Runge-Kutta (IMU readings interpolated linearly inside the step), and
 //! the error-state covariance by the linearized transition
 //! `Phi = I + F dt + (F dt)^2 / 2` and the discrete noise `Q_k = Phi G Q G^T Phi^T dt`.
+//!
+//! First-estimate Jacobians (see [`super::state`]): the attitude columns of `Phi` that carry the
+//! unobservable yaw direction are written from the first estimate `x_k^fej` (propagated, before any
+//! update at `t_k`) and the newly propagated `x_k+1`, as OpenVINS does:
+//! `Phi_thth = R_k+1^T R_k^fej`, `Phi_vth = -[v_k+1 - v_k^fej - g dt]x R_k^fej`,
+//! `Phi_pth = -[p_k+1 - p_k^fej - v_k^fej dt - g dt^2 / 2]x R_k^fej`. Without updates these equal
+//! the series terms to first order; with them `Phi_k N(x_k^fej) = N(x_k+1)` holds exactly for the
+//! yaw direction `N = [R^T e_z; -[v]x e_z; -[p]x e_z; 0]`, so no yaw information is created.
 
 use nalgebra::{DMatrix, Matrix3, Quaternion, SMatrix, UnitQuaternion, Vector3};
 
-use super::state::{BA, BG, FilterState, IMU_DIM, ImuState, POS, SCALE, TH, VEL, symmetrize};
+use super::state::{BA, BG, FilterState, IMU_DIM, ImuFej, ImuState, POS, SCALE, SONAR_BIAS, TH, VEL, symmetrize};
 use crate::fgo::so3::hat;
 
 /// Gravity in NED, m/s^2 (points down).
@@ -95,11 +103,13 @@ pub fn static_init(samples: &[ImuSample]) -> Result<ImuState, InitError> {
         bias_gyro_radps: w_avg,
         bias_acc_mps2: bias_acc,
         sonar_scale: 1.0,
+        depth_ref_err_m: 0.0,
+        sonar_bias_mps: 0.0,
     })
 }
 
-type M15 = SMatrix<f64, 16, 16>;
-type M15x12 = SMatrix<f64, 16, 13>;
+type M15 = SMatrix<f64, IMU_DIM, IMU_DIM>;
+type M15x12 = SMatrix<f64, IMU_DIM, 13>;
 
 fn set3(m: &mut M15, r: usize, c: usize, b: &Matrix3<f64>) {
     m.fixed_view_mut::<3, 3>(r, c).copy_from(b);
@@ -111,7 +121,8 @@ fn qdot(q: &Quaternion<f64>, w: &Vector3<f64>) -> Quaternion<f64> {
 }
 
 /// Propagate the filter from `s0` (at the state's time) to `s1` (its `t_s` is the new time).
-pub fn propagate(st: &mut FilterState, s0: &ImuSample, s1: &ImuSample, noise: &ImuNoise) {
+/// `sonar_bias` = (sigma m/s, correlation time s) of the sonar speed error's Gauss-Markov state.
+pub fn propagate(st: &mut FilterState, s0: &ImuSample, s1: &ImuSample, noise: &ImuNoise, sonar_bias: (f64, f64)) {
     let dt = s1.t_s - st.imu.t_s;
     if dt <= 0.0 {
         return;
@@ -140,6 +151,8 @@ pub fn propagate(st: &mut FilterState, s0: &ImuSample, s1: &ImuSample, noise: &I
     let v1 = v0 + (k1v + k2v * 2.0 + k3v * 2.0 + k4v) * (dt / 6.0);
     let p1 = p0 + (k1p + k2p * 2.0 + k3p * 2.0 + k4p) * (dt / 6.0);
     let r0 = st.imu.rot;
+    let lin = st.imu_lin();
+    let r1 = UnitQuaternion::from_quaternion(q1).to_rotation_matrix().into_inner();
 
     // Error-state transition at the step's midpoint.
     let (w_mid, a_mid) = at(t0 + dt / 2.0);
@@ -150,7 +163,17 @@ pub fn propagate(st: &mut FilterState, s0: &ImuSample, s1: &ImuSample, noise: &I
     set3(&mut f, VEL, BA, &(-r0));
     set3(&mut f, POS, VEL, &Matrix3::identity());
     let fdt = f * dt;
-    let phi = M15::identity() + fdt + fdt * fdt * 0.5;
+    let mut phi = M15::identity() + fdt + fdt * fdt * 0.5;
+    // First-order Gauss-Markov sonar speed error: decay exp(-dt / tau), stationary variance sigma^2.
+    let (sb_sigma, sb_tau) = sonar_bias;
+    let decay = if sb_tau > 0.0 && sb_tau.is_finite() { (-dt / sb_tau).exp() } else { 1.0 };
+    phi[(SONAR_BIAS, SONAR_BIAS)] = decay;
+    st.imu.sonar_bias_mps *= decay;
+    // The attitude columns from the first estimates (module doc).
+    let lr = lin.rot;
+    set3(&mut phi, TH, TH, &(r1.transpose() * lr));
+    set3(&mut phi, VEL, TH, &(-hat(&(v1 - lin.vel_w_mps - g * dt)) * lr));
+    set3(&mut phi, POS, TH, &(-hat(&(p1 - lin.pos_w_m - lin.vel_w_mps * dt - g * (0.5 * dt * dt))) * lr));
     let mut gm = M15x12::zeros();
     gm.fixed_view_mut::<3, 3>(TH, 0).copy_from(&(-Matrix3::identity()));
     gm.fixed_view_mut::<3, 3>(VEL, 3).copy_from(&(-r0));
@@ -168,21 +191,23 @@ pub fn propagate(st: &mut FilterState, s0: &ImuSample, s1: &ImuSample, noise: &I
     let qk = phi * gm * qc * gm.transpose() * phi.transpose() * dt;
 
     let n = st.dim();
-    let pii: M15 = st.cov.fixed_view::<16, 16>(0, 0).into_owned();
-    let new_ii = phi * pii * phi.transpose() + qk;
-    st.cov.fixed_view_mut::<16, 16>(0, 0).copy_from(&new_ii);
+    let pii: M15 = st.cov.fixed_view::<IMU_DIM, IMU_DIM>(0, 0).into_owned();
+    let mut new_ii = phi * pii * phi.transpose() + qk;
+    new_ii[(SONAR_BIAS, SONAR_BIAS)] += sb_sigma * sb_sigma * (1.0 - decay * decay);
+    st.cov.fixed_view_mut::<IMU_DIM, IMU_DIM>(0, 0).copy_from(&new_ii);
     if n > IMU_DIM {
         let pic = st.cov.view((0, IMU_DIM), (IMU_DIM, n - IMU_DIM)).into_owned();
-        let new_ic: DMatrix<f64> = DMatrix::from_iterator(16, 16, phi.iter().copied()) * pic;
+        let new_ic: DMatrix<f64> = DMatrix::from_iterator(IMU_DIM, IMU_DIM, phi.iter().copied()) * pic;
         st.cov.view_mut((0, IMU_DIM), (IMU_DIM, n - IMU_DIM)).copy_from(&new_ic);
         st.cov.view_mut((IMU_DIM, 0), (n - IMU_DIM, IMU_DIM)).copy_from(&new_ic.transpose());
     }
     symmetrize(&mut st.cov);
 
-    st.imu.rot = UnitQuaternion::from_quaternion(q1).to_rotation_matrix().into_inner();
+    st.imu.rot = r1;
     st.imu.vel_w_mps = v1;
     st.imu.pos_w_m = p1;
     st.imu.t_s = s1.t_s;
+    st.fej = ImuFej::of(&st.imu);
 }
 
 #[cfg(test)]
@@ -212,12 +237,58 @@ mod tests {
         assert!(matches!(static_init(&moving), Err(InitError::NotStill { .. })));
     }
 
+    /// The yaw-about-gravity direction `N = [R^T e_z; -[v]x e_z; -[p]x e_z; 0]` of the first
+    /// estimate is carried by the FEJ transition exactly onto `N` of the new estimate, even after an
+    /// update moved the estimate away from the first estimate (so no yaw information appears);
+    /// the plain EKF transition does not.
+    #[test]
+    fn fej_transition_keeps_the_yaw_direction() {
+        let ez = Vector3::z();
+        let n_of = |rot: &Matrix3<f64>, v: &Vector3<f64>, p: &Vector3<f64>| {
+            let mut n = DMatrix::zeros(IMU_DIM, 1);
+            n.view_mut((TH, 0), (3, 1)).copy_from(&(rot.transpose() * ez));
+            n.view_mut((VEL, 0), (3, 1)).copy_from(&(-hat(v) * ez));
+            n.view_mut((POS, 0), (3, 1)).copy_from(&(-hat(p) * ez));
+            n
+        };
+        let fej_rot = so3::exp(&Vector3::new(0.05, -0.02, 0.8));
+        let (fej_v, fej_p) = (Vector3::new(1.0, 0.2, 0.1), Vector3::new(3.0, 4.0, 5.0));
+        let zero = ImuNoise { gyro_radps_rthz: 0.0, acc_mps2_rthz: 0.0, gyro_bias_walk: 0.0, acc_bias_walk: 0.0 };
+        let s0 = ImuSample { t_s: 0.0, gyro_radps: Vector3::new(0.01, 0.02, 0.3), acc_mps2: Vector3::new(0.3, -0.1, -9.7) };
+        let s1 = ImuSample { t_s: 0.005, gyro_radps: Vector3::new(0.012, 0.018, 0.29), acc_mps2: Vector3::new(0.32, -0.1, -9.72) };
+        let mut errs = Vec::new();
+        for fej in [true, false] {
+            let imu = ImuState {
+                t_s: 0.0,
+                // The estimate after an update: 10 mrad, 2 cm/s and 5 cm from the first estimate.
+                rot: fej_rot * so3::exp(&Vector3::new(0.0, 0.01, -0.005)),
+                vel_w_mps: fej_v + Vector3::new(0.02, -0.01, 0.0),
+                pos_w_m: fej_p + Vector3::new(0.05, 0.03, 0.0),
+                bias_gyro_radps: Vector3::zeros(),
+                bias_acc_mps2: Vector3::zeros(),
+                sonar_scale: 1.0,
+                depth_ref_err_m: 0.0,
+                sonar_bias_mps: 0.0,
+            };
+            let n0 = n_of(&fej_rot, &fej_v, &fej_p);
+            let mut st = FilterState::new(imu, &n0 * n0.transpose());
+            st.fej = ImuFej { rot: fej_rot, vel_w_mps: fej_v, pos_w_m: fej_p };
+            st.fej_enabled = fej;
+            propagate(&mut st, &s0, &s1, &zero, (0.0, 0.0));
+            let n1 = n_of(&st.imu.rot, &st.imu.vel_w_mps, &st.imu.pos_w_m);
+            let expect = &n1 * n1.transpose();
+            errs.push((st.cov.view((0, 0), (9, 9)) - expect.view((0, 0), (9, 9))).abs().max());
+        }
+        assert!(errs[0] < 1e-9, "FEJ: {}", errs[0]);
+        assert!(errs[1] > 1e-3, "plain EKF unexpectedly exact: {}", errs[1]);
+    }
+
     #[test]
     fn propagation_of_constant_rate_and_acceleration_is_exact_enough() {
         // Constant yaw rate, at rest otherwise except the gravity reaction: position stays, yaw grows.
         let w = Vector3::new(0.0, 0.0, 0.2);
-        let mut st = FilterState {
-            imu: ImuState {
+        let mut st = FilterState::new(
+            ImuState {
                 t_s: 0.0,
                 rot: Matrix3::identity(),
                 vel_w_mps: Vector3::new(1.0, 0.0, 0.0),
@@ -225,15 +296,16 @@ mod tests {
                 bias_gyro_radps: Vector3::zeros(),
                 bias_acc_mps2: Vector3::zeros(),
                 sonar_scale: 1.0,
+                depth_ref_err_m: 0.0,
+                sonar_bias_mps: 0.0,
             },
-            clones: vec![],
-            cov: DMatrix::identity(16, 16) * 1e-4,
-        };
+            DMatrix::identity(IMU_DIM, IMU_DIM) * 1e-4,
+        );
         let f = -gravity_w();
         let mut prev = ImuSample { t_s: 0.0, gyro_radps: w, acc_mps2: f };
         for i in 1..=1000 {
             let s = ImuSample { t_s: i as f64 * 0.005, gyro_radps: w, acc_mps2: f };
-            propagate(&mut st, &prev, &s, &ImuNoise::default());
+            propagate(&mut st, &prev, &s, &ImuNoise::default(), (0.0, 0.0));
             prev = s;
         }
         // 5 s: yaw 1 rad, position 5 m along x (velocity is constant in world frame).

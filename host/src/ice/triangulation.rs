@@ -69,11 +69,13 @@ mod tests {
         let cam = StereoCamera::default();
         let pf = Vector3::new(2.0, 1.0, 0.3);
         let clones: Vec<CloneState> = (0..4)
-            .map(|i| CloneState {
-                t_s: i as f64,
-                frame_id: i,
-                rot: so3::exp(&Vector3::new(0.01 * i as f64, 0.0, 0.1 * i as f64)),
-                pos_w_m: Vector3::new(0.3 * i as f64, 0.1, 5.0),
+            .map(|i| {
+                CloneState::new(
+                    i as f64,
+                    i,
+                    so3::exp(&Vector3::new(0.01 * i as f64, 0.0, 0.1 * i as f64)),
+                    Vector3::new(0.3 * i as f64, 0.1, 5.0),
+                )
             })
             .collect();
         let obs: Vec<_> = clones.iter().map(|c| (c, cam.project(&cam.to_cam(&cam.cam_pose(&c.rot, &c.pos_w_m), &pf)).unwrap())).collect();
