@@ -36,9 +36,6 @@
 //! sees them again, and two consecutive increments never share an observation (their errors are
 //! independent, as the update assumes). The other features stay with the MSCKF.
 //!
-//! Declared from `odometry.rs` (`#[path]`), as `ice/mod.rs` is being edited elsewhere; it can move
-//! to `ice/mod.rs` as `pub mod augment;` with no other change.
-//!
 //! Own code because no maintained crate gives a covariance-weighted 3-D/3-D alignment with its
 //! covariance (the Kabsch core is nalgebra's SVD).
 

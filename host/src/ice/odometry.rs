@@ -2,15 +2,12 @@
 //! stereo frames (clone augmentation, feature bookkeeping, MSCKF updates of lost tracks and of
 //! tracks in pruned frames, window pruning two at a time), depth readings and sonar velocities.
 
-#[path = "augment.rs"]
-pub mod augment;
-
 use std::collections::HashMap;
 
 use anyhow::{Result, bail};
 use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3};
 
-use self::augment::{AugmentConfig, estimate_relative_pose, relative_pose_update};
+use super::augment::{self, AugmentConfig, estimate_relative_pose, relative_pose_update};
 use super::camera::StereoCamera;
 use super::data::Dataset;
 use super::depth::{DepthConfig, DepthUpdater, robust_reference};
