@@ -57,6 +57,51 @@ pub(crate) fn scalar_noise(sigma: f64, alpha: f64) -> AdaptiveNoise<f64, 1> {
     })
 }
 
+/// What [`scalar_adaptive_update`] did with a residual.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ScalarOutcome {
+    Used,
+    /// Outside the chi-square gate; the state is unchanged.
+    Gated,
+    /// The EKF update failed (non-finite or singular innovation); the state is unchanged.
+    Failed,
+}
+
+/// One gated scalar EKF update with adaptive noise, shared by the depth and sonar updates:
+/// residual `r`, Jacobian row `h` (1 x n), noise `noise.r`. The gate is chi-square with 1 dof at
+/// probability `gate` on `r^2 / (h P h^T + R)`. With `adaptive`, the noise steps on the
+/// post-update residual `r - h dx` and the posterior `h P h^T`; a gated residual still steps it,
+/// clipped to the gate, so a sensor whose noise grew is not locked out for good.
+pub(crate) fn scalar_adaptive_update(
+    st: &mut FilterState,
+    noise: &mut AdaptiveNoise<f64, 1>,
+    adaptive: bool,
+    gate: f64,
+    r: f64,
+    h: &DMatrix<f64>,
+) -> ScalarOutcome {
+    let rr = noise.r[(0, 0)];
+    let hph = (h * &st.cov * h.transpose())[(0, 0)];
+    let s = hph + rr;
+    let limit = crate::fgo::gating::chi2_quantile(1, gate).unwrap_or(f64::INFINITY);
+    if r * r / s > limit {
+        if adaptive {
+            let clipped = r.signum() * (limit * s).sqrt();
+            let _ = noise.step(&Vector1::new(clipped), &Matrix1::new(hph));
+        }
+        return ScalarOutcome::Gated;
+    }
+    let Some(dx) = st.ekf_update(&DVector::from_element(1, r), h, &DMatrix::from_element(1, 1, rr)) else {
+        return ScalarOutcome::Failed;
+    };
+    if adaptive {
+        let mu = r - (h * dx)[(0, 0)];
+        let hph_post = (h * &st.cov * h.transpose())[(0, 0)];
+        let _ = noise.step(&Vector1::new(mu), &Matrix1::new(hph_post));
+    }
+    ScalarOutcome::Used
+}
+
 /// A reference depth from still readings: the median, then the mean of the readings within
 /// `5 x 1.4826 MAD` of it (the MAD floored at `sigma_floor_m`), and the variance of that mean
 /// (sample variance of the kept readings over their count, floored at `sigma_floor_m^2 / count`;
@@ -129,27 +174,10 @@ impl DepthUpdater {
         for k in 0..3 {
             h[(0, TH + k)] = d[(2, k)];
         }
-        let rcov = DMatrix::from_element(1, 1, self.noise.r[(0, 0)]);
-        let s = (&h * &st.cov * h.transpose())[(0, 0)] + rcov[(0, 0)];
-        let limit = crate::fgo::gating::chi2_quantile(1, self.cfg.gate).unwrap_or(f64::INFINITY);
-        if r * r / s > limit {
-            self.gated += 1;
-            // The gated residual still informs the adaptive R (clipped to the gate), so a gauge
-            // whose noise grew is not locked out for good.
-            if self.cfg.adaptive {
-                let clipped = r.signum() * (limit * s).sqrt();
-                let hph = (&h * &st.cov * h.transpose())[(0, 0)];
-                let _ = self.noise.step(&Vector1::new(clipped), &Matrix1::new(hph));
-            }
-            return;
-        }
-        if let Some(dx) = st.ekf_update(&DVector::from_element(1, r), &h, &rcov) {
-            self.used += 1;
-            if self.cfg.adaptive {
-                let mu = r - (&h * dx)[(0, 0)];
-                let hph = (&h * &st.cov * h.transpose())[(0, 0)];
-                let _ = self.noise.step(&Vector1::new(mu), &Matrix1::new(hph));
-            }
+        match scalar_adaptive_update(st, &mut self.noise, self.cfg.adaptive, self.cfg.gate, r, &h) {
+            ScalarOutcome::Used => self.used += 1,
+            ScalarOutcome::Gated => self.gated += 1,
+            ScalarOutcome::Failed => {}
         }
     }
 }

@@ -23,9 +23,10 @@
 //! error state `b` (`SONAR_BIAS`, `h(x) = k u_b . R^T v + b`, sigma `bias_sigma_mps`, correlation
 //! time `bias_tau_s`), and the adaptive R estimates the remaining white part.
 
-use nalgebra::{DMatrix, DVector, Matrix1, Vector1, Vector3};
+use nalgebra::{DMatrix, Vector3};
 use subnav_shared::depth_adaptive::{AdaptiveNoise, interpolate_at};
 
+use super::depth::{ScalarOutcome, scalar_adaptive_update};
 use super::phasecorr::{Gray, PhaseCorrelator, Refinement};
 use super::state::{FilterState, ImuState, SCALE, SONAR_BIAS, TH, VEL};
 use crate::fgo::so3::hat;
@@ -179,24 +180,10 @@ impl SonarUpdater {
         }
         h[(0, SCALE)] = u.dot(&v_b);
         h[(0, SONAR_BIAS)] = 1.0;
-        let rr = self.noise.r[(0, 0)];
-        let hph = (&h * &st.cov * h.transpose())[(0, 0)];
-        let limit = crate::fgo::gating::chi2_quantile(1, self.cfg.gate).unwrap_or(f64::INFINITY);
-        if r * r / (hph + rr) > limit {
-            self.gated += 1;
-            if self.cfg.adaptive {
-                let clipped = r.signum() * (limit * (hph + rr)).sqrt();
-                let _ = self.noise.step(&Vector1::new(clipped), &Matrix1::new(hph));
-            }
-            return;
-        }
-        if let Some(dx) = st.ekf_update(&DVector::from_element(1, r), &h, &DMatrix::from_element(1, 1, rr)) {
-            self.used += 1;
-            if self.cfg.adaptive {
-                let mu = r - (&h * dx)[(0, 0)];
-                let hph = (&h * &st.cov * h.transpose())[(0, 0)];
-                let _ = self.noise.step(&Vector1::new(mu), &Matrix1::new(hph));
-            }
+        match scalar_adaptive_update(st, &mut self.noise, self.cfg.adaptive, self.cfg.gate, r, &h) {
+            ScalarOutcome::Used => self.used += 1,
+            ScalarOutcome::Gated => self.gated += 1,
+            ScalarOutcome::Failed => {}
         }
     }
 }
