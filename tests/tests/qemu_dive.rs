@@ -82,8 +82,8 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
 
 /// Stack painting: the board reports its stack peak at the end of a run. 12 s with the sensors
 /// covers the deepest paths measured so far (boot, the end of the alignment at 10 s, the filter).
-/// The bound is a regression limit at today's figure (37,692 B) plus 10 %, not the 32 KiB goal, which is not
-/// met (docs/PERFORMANCE.md, "Firmware size and RAM").
+/// The bound is the 32 KiB RAM goal less 1 KiB for static RAM (the QEMU board has 24 B, the STM32
+/// board 1,100 B): today's figure is 29,424 B (docs/PERFORMANCE.md, "Firmware size and RAM").
 #[test]
 fn the_stack_peak_is_painted_and_reported() {
     use subnav_host::link::qemu::{QemuConfig, QemuEvent, run_with_bus};
@@ -105,5 +105,5 @@ fn the_stack_peak_is_painted_and_reported() {
     let (peak, size): (u32, u32) = (words[2].parse().unwrap(), words[5].parse().unwrap());
     eprintln!("{line}");
     assert!(peak > 1024 && peak < size, "{line}");
-    assert!(peak <= 41_500, "stack peak regressed: {line}");
+    assert!(peak <= 31 * 1024, "stack peak over the 32 KiB RAM goal: {line}");
 }

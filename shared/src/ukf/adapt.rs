@@ -197,24 +197,26 @@ pub(crate) fn sage_husa_cov<T: RealField + Copy, const D: usize>(
     delta: &SMatrix<T, D, D>,
     floor: T,
 ) -> Option<Adapted<T, D>> {
+    // Built entry by entry and factored in place (`pd` module doc: stack on the sensor head).
     let one_d = T::one() - d;
-    let mut cand = old * one_d + (pos + delta) * d;
+    let mut cand = SMatrix::<T, D, D>::from_fn(|i, j| old[(i, j)] * one_d + (pos[(i, j)] + delta[(i, j)]) * d);
     pd::symmetrize(&mut cand);
     if pd::all_finite(&cand) && min_diag(&cand) > floor {
-        if let Some(c) = nalgebra::linalg::Cholesky::new(cand) {
-            let l = c.l();
-            let ok = (0..D).all(|i| l[(i, i)] * l[(i, i)] > floor);
-            if ok {
-                return Some(Adapted { cov: cand, fallback: false });
-            }
+        let mut l = SMatrix::<T, D, D>::zeros();
+        if pd::cholesky_into(&cand, &mut l) && (0..D).all(|i| l[(i, i)] * l[(i, i)] > floor) {
+            return Some(Adapted { cov: cand, fallback: false });
         }
     }
-    let mut biased = old * one_d + pos * d;
-    pd::symmetrize(&mut biased);
+    // The biased fallback, reusing the candidate's storage.
+    for i in 0..D {
+        for j in 0..D {
+            cand[(i, j)] = old[(i, j)] * one_d + pos[(i, j)] * d;
+        }
+    }
+    pd::symmetrize(&mut cand);
     let tiny = T::default_epsilon();
     let fl = if floor > tiny { floor } else { tiny };
-    let cov = pd::repair(&biased, fl, T::zero())?;
-    Some(Adapted { cov, fallback: true })
+    pd::repair_in_place(&mut cand, fl, T::zero()).then_some(Adapted { cov: cand, fallback: true })
 }
 
 fn min_diag<T: RealField + Copy, const D: usize>(m: &SMatrix<T, D, D>) -> T {

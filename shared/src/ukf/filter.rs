@@ -14,7 +14,7 @@ use nalgebra::{RealField, SMatrix, SVector};
 
 use super::adapt::{AdaptConfig, MeasNoise, sage_husa_cov, sage_husa_d};
 use super::gate::{gating_cov, nis};
-use super::pd::{all_finite, finalize};
+use super::pd::{all_finite, finalize, finalize_in_place};
 use super::space::{Euclidean, Space};
 use super::weights::SigmaWeights;
 
@@ -237,13 +237,16 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         Ok(())
     }
 
-    fn commit_p(&mut self, p: SMatrix<T, N, N>) -> Result<(), UkfError> {
-        let f = finalize(p, self.cfg.p_floor, self.cfg.p_rel_floor).ok_or(UkfError::NonFiniteResult)?;
-        if f.repaired {
+    fn commit_p(&mut self, mut p: SMatrix<T, N, N>) -> Result<(), UkfError> {
+        // In place (`pd` module doc: stack on the sensor head); on failure `self.p` and `self.l`
+        // are unchanged.
+        let mut l = SMatrix::<T, N, N>::zeros();
+        let repaired = finalize_in_place(&mut p, &mut l, self.cfg.p_floor, self.cfg.p_rel_floor).ok_or(UkfError::NonFiniteResult)?;
+        if repaired {
             self.health.pd_repairs += 1;
         }
-        self.p = f.p;
-        self.l = f.l;
+        self.p = p;
+        self.l = l;
         Ok(())
     }
 
@@ -296,10 +299,10 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteInput);
         }
-        let pts = self.sigma_points();
-        let mut prop = [SVector::<T, N>::zeros(); S];
-        for (o, s) in prop.iter_mut().zip(pts.iter()) {
-            *o = f(s);
+        // Propagated in place: one array of 2N+1 points on the stack, not two.
+        let mut prop = self.sigma_points();
+        for o in prop.iter_mut() {
+            *o = f(o);
             if !all_finite(o) {
                 self.health.nonfinite_rejects += 1;
                 return Err(UkfError::NonFiniteResult);

@@ -8,8 +8,14 @@
 //! The eigendecomposition is a small cyclic Jacobi sweep written here: nalgebra's
 //! `SymmetricEigen` needs typenum bounds (`Const<N>: DimSub<U1>`) that would spread to every
 //! generic signature of the filter, and repairs are rare, so speed does not matter.
+//!
+//! The Cholesky factorization and the repair work in place ([`cholesky_into`],
+//! [`repair_in_place`], [`finalize_in_place`]): nalgebra's `Cholesky::new` takes the matrix by
+//! value and `unpack` returns a new one, and the repair's `V diag(d) V^T` made three more
+//! `N x N` temporaries. On the sensor head (15 x 15 f32, 900 bytes each) those copies were
+//! 9.4 KB of stack in `repair` and 5.4 KB in `finalize`, on the deepest call chain of the firmware
+//! (docs/PERFORMANCE.md, "Firmware size and RAM").
 
-use nalgebra::linalg::Cholesky;
 use nalgebra::{RealField, SMatrix, SVector};
 
 /// Eigenvalues and eigenvectors (columns) of a symmetric matrix by cyclic Jacobi rotations.
@@ -18,11 +24,23 @@ pub fn jacobi_eigen<T: RealField + Copy, const N: usize>(
     a: &SMatrix<T, N, N>,
     max_sweeps: usize,
 ) -> Option<(SVector<T, N>, SMatrix<T, N, N>)> {
-    if !all_finite(a) {
-        return None;
-    }
     let mut a = *a;
-    let mut v = SMatrix::<T, N, N>::identity();
+    let mut v = SMatrix::<T, N, N>::zeros();
+    jacobi_eigen_in_place(&mut a, &mut v, max_sweeps).then(|| (a.diagonal(), v))
+}
+
+/// [`jacobi_eigen`] in place: `a` is rotated until diagonal (its diagonal then holds the
+/// eigenvalues) and `v` receives the eigenvectors (columns). `false` if `a` is not finite or the
+/// sweeps do not converge; `a` and `v` are then unspecified.
+pub fn jacobi_eigen_in_place<T: RealField + Copy, const N: usize>(
+    a: &mut SMatrix<T, N, N>,
+    v: &mut SMatrix<T, N, N>,
+    max_sweeps: usize,
+) -> bool {
+    if !all_finite(a) {
+        return false;
+    }
+    v.fill_with_identity();
     let eps = T::default_epsilon();
     for _ in 0..max_sweeps {
         let mut off = T::zero();
@@ -34,7 +52,7 @@ pub fn jacobi_eigen<T: RealField + Copy, const N: usize>(
             }
         }
         if off <= eps * eps * diag || off == T::zero() {
-            return Some((a.diagonal(), v));
+            return true;
         }
         for p in 0..N {
             for q in (p + 1)..N {
@@ -68,9 +86,32 @@ pub fn jacobi_eigen<T: RealField + Copy, const N: usize>(
             }
         }
     }
-    None
+    false
 }
 
+/// Lower Cholesky factor of the symmetric matrix `p` (only its lower triangle is read) into `l`
+/// (upper triangle zeroed): `p = l l^T`, row by row (Cholesky-Banachiewicz). `false` if a pivot is
+/// not positive or not finite; `l` is then unspecified.
+pub fn cholesky_into<T: RealField + Copy, const N: usize>(p: &SMatrix<T, N, N>, l: &mut SMatrix<T, N, N>) -> bool {
+    l.fill(T::zero());
+    for i in 0..N {
+        for j in 0..=i {
+            let mut s = p[(i, j)];
+            for k in 0..j {
+                s -= l[(i, k)] * l[(j, k)];
+            }
+            if i == j {
+                if !(s > T::zero()) || !s.is_finite() {
+                    return false;
+                }
+                l[(i, i)] = s.sqrt();
+            } else {
+                l[(i, j)] = s / l[(j, j)];
+            }
+        }
+    }
+    true
+}
 /// Make `p` exactly symmetric: `(P + P^T) / 2`.
 pub fn symmetrize<T: RealField + Copy, const N: usize>(p: &mut SMatrix<T, N, N>) {
     let half = T::from_subset(&0.5);
@@ -91,16 +132,37 @@ pub fn all_finite<T: RealField + Copy, const R: usize, const C: usize>(m: &SMatr
 /// Floor the eigenvalues of a symmetric matrix. Returns `None` when the decomposition fails
 /// (non-finite input).
 pub fn repair<T: RealField + Copy, const N: usize>(p: &SMatrix<T, N, N>, abs_floor: T, rel_floor: T) -> Option<SMatrix<T, N, N>> {
-    if !all_finite(p) {
-        return None;
+    let mut out = *p;
+    repair_in_place(&mut out, abs_floor, rel_floor).then_some(out)
+}
+
+/// [`repair`] in place: the eigenvalues of `p` are floored at `max(abs_floor, rel_floor *
+/// largest)` and `p = V diag(d) V^T` is rebuilt entry by entry (exactly symmetric). `false` when
+/// the decomposition fails (non-finite input); `p` is then unspecified.
+pub fn repair_in_place<T: RealField + Copy, const N: usize>(p: &mut SMatrix<T, N, N>, abs_floor: T, rel_floor: T) -> bool {
+    let mut v = SMatrix::<T, N, N>::zeros();
+    if !jacobi_eigen_in_place(p, &mut v, 50) {
+        return false;
     }
-    let (vals, v) = jacobi_eigen(p, 50)?;
-    let largest = vals.iter().fold(T::zero(), |a, &b| if b > a { b } else { a });
+    let mut d = p.diagonal();
+    let largest = d.iter().fold(T::zero(), |a, &b| if b > a { b } else { a });
     let floor = if abs_floor > rel_floor * largest { abs_floor } else { rel_floor * largest };
-    let d = vals.map(|e| if e > floor { e } else { floor });
-    let mut out = v * SMatrix::<T, N, N>::from_diagonal(&d) * v.transpose();
-    symmetrize(&mut out);
-    Some(out)
+    d.apply(|e| {
+        if !(*e > floor) {
+            *e = floor;
+        }
+    });
+    for i in 0..N {
+        for j in 0..=i {
+            let mut s = T::zero();
+            for k in 0..N {
+                s += v[(i, k)] * d[k] * v[(j, k)];
+            }
+            p[(i, j)] = s;
+            p[(j, i)] = s;
+        }
+    }
+    true
 }
 
 /// Result of [`finalize`].
@@ -115,24 +177,37 @@ pub struct Finalized<T: RealField + Copy, const N: usize> {
 /// Symmetrize `p`, factor it, and repair it if the factorization fails. `None` if even the
 /// repaired matrix cannot be factored (non-finite input).
 pub fn finalize<T: RealField + Copy, const N: usize>(mut p: SMatrix<T, N, N>, abs_floor: T, rel_floor: T) -> Option<Finalized<T, N>> {
-    symmetrize(&mut p);
-    if all_finite(&p) {
-        if let Some(c) = Cholesky::new(p) {
-            // Also require a positive diagonal of the factor, well above zero (f32 Cholesky can
-            // "succeed" on a matrix with a tiny negative eigenvalue rounded away).
-            let l = c.unpack();
-            let min_pivot2 = (0..N).fold(T::max_value().unwrap_or(T::one()), |a, i| {
-                let v = l[(i, i)] * l[(i, i)];
-                if v < a { v } else { a }
-            });
-            if min_pivot2 > abs_floor * T::from_subset(&1e-3) {
-                return Some(Finalized { p, l, repaired: false });
-            }
-        }
+    let mut l = SMatrix::<T, N, N>::zeros();
+    let repaired = finalize_in_place(&mut p, &mut l, abs_floor, rel_floor)?;
+    Some(Finalized { p, l, repaired })
+}
+
+/// [`finalize`] in place: `p` becomes the symmetrized (and if needed repaired) covariance and `l`
+/// its lower Cholesky factor; returns whether a repair was needed. The factor must have every
+/// pivot^2 above `abs_floor * 1e-3` (an f32 factorization can "succeed" on a matrix with a tiny
+/// negative eigenvalue rounded away). `None` (with `p` and `l` unspecified) if even the repaired
+/// matrix cannot be factored (non-finite input).
+pub fn finalize_in_place<T: RealField + Copy, const N: usize>(
+    p: &mut SMatrix<T, N, N>,
+    l: &mut SMatrix<T, N, N>,
+    abs_floor: T,
+    rel_floor: T,
+) -> Option<bool> {
+    symmetrize(p);
+    if !all_finite(p) {
+        return None;
     }
-    let p2 = repair(&p, abs_floor, rel_floor)?;
-    let l = Cholesky::new(p2)?.unpack();
-    Some(Finalized { p: p2, l, repaired: true })
+    let min_pivot2 = abs_floor * T::from_subset(&1e-3);
+    let pivots_ok = |l: &SMatrix<T, N, N>| (0..N).all(|i| l[(i, i)] * l[(i, i)] > min_pivot2);
+    if cholesky_into(p, l) && pivots_ok(l) {
+        return Some(false);
+    }
+    if !repair_in_place(p, abs_floor, rel_floor) {
+        return None;
+    }
+    // The repaired matrix has every eigenvalue >= abs_floor, so its pivots pass; the factor is
+    // only required to exist (as before the in-place rewrite).
+    cholesky_into(p, l).then_some(true)
 }
 
 #[cfg(test)]
@@ -154,5 +229,47 @@ mod tests {
         v.sort_by(|a, b| a.partial_cmp(b).unwrap());
         assert!((v[0] - 1.0).abs() < 1e-12 && (v[1] - 3.0).abs() < 1e-12 && (v[2] - 5.0).abs() < 1e-12);
         assert!(finalize(Matrix3::new(f64::NAN, 0., 0., 0., 1., 0., 0., 0., 1.), 1e-9, 1e-12).is_none());
+    }
+
+    /// The in-place factor and repair against nalgebra (which we did not write): the Cholesky
+    /// factor equals `nalgebra::linalg::Cholesky`'s, a non-PD matrix is refused, and the repaired
+    /// matrix equals `V diag(max(e, floor)) V^T` built with nalgebra products.
+    #[test]
+    fn in_place_factor_and_repair_match_nalgebra() {
+        use nalgebra::{SMatrix, linalg::Cholesky};
+        // A 15 x 15 SPD matrix from a fixed pseudo-random A: A A^T + 0.1 I.
+        let mut seed = 12345u64;
+        let a = SMatrix::<f64, 15, 15>::from_fn(|_, _| {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        });
+        let p = a * a.transpose() + SMatrix::<f64, 15, 15>::identity() * 0.1;
+        let mut l = SMatrix::<f64, 15, 15>::zeros();
+        assert!(cholesky_into(&p, &mut l));
+        let l_ref = Cholesky::new(p).unwrap().unpack();
+        assert!((l - l_ref).abs().max() < 1e-12, "{}", (l - l_ref).abs().max());
+        // Indefinite: shift by the smallest eigenvalue + 1 so one eigenvalue is -1.
+        let (vals, _) = jacobi_eigen(&p, 50).unwrap();
+        let emin = vals.min();
+        let q = p - SMatrix::<f64, 15, 15>::identity() * (emin + 1.0);
+        assert!(!cholesky_into(&q, &mut l));
+        assert!(Cholesky::new(q).is_none());
+        let (vals_q, vq) = jacobi_eigen(&q, 50).unwrap();
+        let floor = 1e-6f64.max(1e-9 * vals_q.max());
+        let expected = vq * SMatrix::<f64, 15, 15>::from_diagonal(&vals_q.map(|e| e.max(floor))) * vq.transpose();
+        let mut r = q;
+        assert!(repair_in_place(&mut r, 1e-6, 1e-9));
+        assert!((r - expected).abs().max() < 1e-9, "{}", (r - expected).abs().max());
+        assert!(r == r.transpose());
+        let f = finalize(q, 1e-6, 1e-9).unwrap();
+        assert!(f.repaired && (f.p - expected).abs().max() < 1e-9);
+        assert!((f.l * f.l.transpose() - f.p).abs().max() < 1e-9);
+        // Non-finite input: refused by every entry point.
+        let mut bad = p;
+        bad[(3, 4)] = f64::NAN;
+        bad[(4, 3)] = f64::NAN;
+        assert!(!cholesky_into(&bad, &mut l));
+        assert!(!repair_in_place(&mut bad.clone(), 1e-6, 1e-9));
+        assert!(finalize(bad, 1e-6, 1e-9).is_none());
     }
 }
