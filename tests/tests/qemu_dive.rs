@@ -83,7 +83,7 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
 /// Stack painting: the board reports its stack peak at the end of a run. 12 s with the sensors
 /// covers the deepest paths measured so far (boot, the end of the alignment at 10 s, the filter).
 /// The bound is the 32 KiB RAM goal less 1 KiB for static RAM (the QEMU board has 24 B, the STM32
-/// board 1,100 B): today's figure is 29,424 B (docs/PERFORMANCE.md, "Firmware size and RAM").
+/// board 1,100 B): today's figure is 29,440 B (docs/PERFORMANCE.md, "Firmware size and RAM").
 #[test]
 fn the_stack_peak_is_painted_and_reported() {
     use subnav_host::link::qemu::{QemuConfig, QemuEvent, run_with_bus};

@@ -4,6 +4,7 @@
 //! ([`AngleSpace`]), so a heading near +-pi is handled, and the attitude error enters through the
 //! rotation, not through a linearization.
 
+use super::rotation::quat_from_rotation_vector;
 use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector1};
 
 use crate::ukf::{AngleSpace, UpdateReport};
@@ -13,7 +14,7 @@ use super::state::{ATT, NominalState, VEL, seg, yaw_of};
 
 /// Predicted heading of an error sigma point.
 pub fn h_heading<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector1<f32> {
-    let q = UnitQuaternion::from_scaled_axis(seg(dx, ATT)) * nom.att_nb;
+    let q = quat_from_rotation_vector(&seg(dx, ATT)) * nom.att_nb;
     Vector1::new(yaw_of(&q))
 }
 

@@ -27,6 +27,7 @@ mod filter;
 pub mod heading;
 pub mod health;
 pub mod position;
+pub mod rotation;
 pub mod state;
 pub mod strapdown;
 pub mod velocity;

@@ -18,6 +18,7 @@
 //! rotations `Exp(phi_i) R` and never leave SO(3) (USQUE-style); after every step the error mean
 //! is folded into the nominal state and the error reset to zero.
 
+use super::rotation::quat_from_rotation_vector;
 use nalgebra::{SVector, UnitQuaternion, Vector3};
 
 pub const ATT: usize = 0;
@@ -59,7 +60,7 @@ impl NominalState {
     /// Fold an error-state mean into the nominal state.
     pub fn inject<const N: usize>(&mut self, dx: &SVector<f32, N>) {
         let phi = seg(dx, ATT);
-        self.att_nb = UnitQuaternion::from_scaled_axis(phi) * self.att_nb;
+        self.att_nb = quat_from_rotation_vector(&phi) * self.att_nb;
         self.att_nb.renormalize_fast();
         self.vel_ned_mps += seg(dx, VEL);
         self.pos_ned_m += seg(dx, POS);

@@ -19,7 +19,8 @@
 //! This is nonlinear in the attitude error (large heading uncertainty is handled exactly), and
 //! first order in the bias errors over one interval.
 
-use nalgebra::{Matrix3, SVector, UnitQuaternion, Vector3};
+use super::rotation::quat_from_rotation_vector;
+use nalgebra::{Matrix3, SVector, Vector3};
 
 use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, seg, set_seg};
 
@@ -51,7 +52,7 @@ pub fn step(
 ) {
     let w = gyro_radps - nom.gyro_bias_radps - nom.gyro_markov_radps;
     let f = accel_mps2 - nom.accel_bias_mps2;
-    let half = UnitQuaternion::from_scaled_axis(w * (0.5 * dt));
+    let half = quat_from_rotation_vector(&(w * (0.5 * dt)));
     let q_mid = nom.att_nb * half;
     let r_mid = q_mid.to_rotation_matrix().into_inner();
     let f_n = r_mid * f;
@@ -78,11 +79,14 @@ pub fn propagate_error<const N: usize>(dx: &SVector<f32, N>, inc: &Increments, m
     let dbg = seg(dx, BG);
     let dba = seg(dx, BA);
     let eps = seg(dx, MARKOV);
-    let e = UnitQuaternion::from_scaled_axis(phi);
-    let b = UnitQuaternion::from_scaled_axis(-(inc.c * (dbg + eps)));
+    let e = quat_from_rotation_vector(&phi);
+    let b = quat_from_rotation_vector(&(-(inc.c * (dbg + eps))));
     let phi2 = (e * b).scaled_axis();
-    let dv2 = dv + (e * inc.dv_f - inc.dv_f) - e * (inc.c * dba);
-    let dp2 = dp + dv * inc.dt_s + (e * inc.dp_f - inc.dp_f) - e * (inc.cc * dba);
+    // e (a - b) - a for e a - a - e b: one rotation each, by the rotation matrix (cheaper than
+    // rotating by the quaternion four times).
+    let r = e.to_rotation_matrix();
+    let dv2 = dv + (r * (inc.dv_f - inc.c * dba) - inc.dv_f);
+    let dp2 = dp + dv * inc.dt_s + (r * (inc.dp_f - inc.cc * dba) - inc.dp_f);
     let mut out = *dx;
     set_seg(&mut out, ATT, &phi2);
     set_seg(&mut out, VEL, &dv2);
@@ -96,6 +100,7 @@ pub fn propagate_error<const N: usize>(dx: &SVector<f32, N>, inc: &Increments, m
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::UnitQuaternion;
 
     fn level() -> NominalState {
         NominalState {

@@ -4,7 +4,8 @@
 //! bounds the horizontal drift between heading and position fixes. No lever arm (the DVL is
 //! assumed at the IMU; add `w x l` here if it is not).
 
-use nalgebra::{SVector, UnitQuaternion, Vector3};
+use super::rotation::quat_from_rotation_vector;
+use nalgebra::{SVector, Vector3};
 
 use crate::ukf::{Euclidean, UpdateReport};
 
@@ -13,7 +14,7 @@ use super::state::{ATT, NominalState, VEL, seg};
 
 /// Predicted body velocity of an error sigma point.
 pub fn h_body_velocity<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> Vector3<f32> {
-    let q = UnitQuaternion::from_scaled_axis(seg(dx, ATT)) * nom.att_nb;
+    let q = quat_from_rotation_vector(&seg(dx, ATT)) * nom.att_nb;
     q.inverse_transform_vector(&(nom.vel_ned_mps + seg(dx, VEL)))
 }
 

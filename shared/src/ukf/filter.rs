@@ -14,7 +14,7 @@ use nalgebra::{RealField, SMatrix, SVector};
 
 use super::adapt::{AdaptConfig, MeasNoise, sage_husa_cov, sage_husa_d};
 use super::gate::{gating_cov, nis};
-use super::pd::{all_finite, finalize, finalize_in_place};
+use super::pd::{add_outer_lower, all_finite, finalize, finalize_in_place, mirror_lower};
 use super::space::{Euclidean, Space};
 use super::weights::SigmaWeights;
 
@@ -313,8 +313,9 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         let mut spread = SMatrix::<T, N, N>::zeros();
         for (c, wc) in prop.iter().zip(self.w.wc.iter()) {
             let r = X::residual(c, &xm);
-            spread.ger(*wc, &r, &r, T::one());
+            add_outer_lower(&mut spread, *wc, &r);
         }
+        mirror_lower(&mut spread);
         let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &self.q_mean) } else { xm };
         if !all_finite(&x_new) {
             self.health.nonfinite_rejects += 1;
@@ -416,7 +417,19 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         let k: SMatrix<T, N, M> = chol.solve(&pxz.transpose()).transpose();
         let dx = k * e;
         let x_new = X::add(&self.x, &dx);
-        let p_new = p_prior - k * s * k.transpose();
+        // P - K S K^T on the lower triangle (then mirrored): half of a general product.
+        let ks: SMatrix<T, N, M> = k * s;
+        let mut p_new = p_prior;
+        for j in 0..N {
+            for i in j..N {
+                let mut acc = T::zero();
+                for m in 0..M {
+                    acc += ks[(i, m)] * k[(j, m)];
+                }
+                p_new[(i, j)] -= acc;
+            }
+        }
+        mirror_lower(&mut p_new);
         if !all_finite(&x_new) || !all_finite(&p_new) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
@@ -428,7 +441,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.health.updates_accepted = self.health.updates_accepted.wrapping_add(1);
         if a.q_cov || a.q_mean {
             self.acc_ke += dx;
-            self.acc_keek.ger(T::one(), &dx, &dx, T::one());
+            add_outer_lower(&mut self.acc_keek, T::one(), &dx);
+            mirror_lower(&mut self.acc_keek);
             self.acc_n = self.acc_n.saturating_add(1);
         }
         self.adapt_r(noise, &e, z, &zhat0, &pzz);
@@ -459,8 +473,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             }
         }
         let mut zs = [SVector::<T, M>::zeros(); S];
-        for (o, s) in zs.iter_mut().zip(pts.iter()) {
-            *o = h(s);
+        for (o, xi) in zs.iter_mut().zip(pts.iter()) {
+            *o = h(xi);
             if !all_finite(o) {
                 return None;
             }
@@ -472,8 +486,15 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         for ((zi, xi), wc) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()) {
             let rz = Z::residual(zi, &zhat);
             let rx = X::residual(xi, &self.x);
-            pzz.ger(*wc, &rz, &rz, T::one());
-            pxz.ger(*wc, &rx, &rz, T::one());
+            for m in 0..M {
+                let wr = *wc * rz[m];
+                for j in 0..M {
+                    pzz[(j, m)] += wr * rz[j];
+                }
+                for i in 0..N {
+                    pxz[(i, m)] += wr * rx[i];
+                }
+            }
         }
         Some((zhat0, zhat, pzz, pxz))
     }

@@ -90,28 +90,44 @@ pub fn jacobi_eigen_in_place<T: RealField + Copy, const N: usize>(
 }
 
 /// Lower Cholesky factor of the symmetric matrix `p` (only its lower triangle is read) into `l`
-/// (upper triangle zeroed): `p = l l^T`, row by row (Cholesky-Banachiewicz). `false` if a pivot is
-/// not positive or not finite; `l` is then unspecified.
+/// (upper triangle zeroed): `p = l l^T`. Right-looking, column by column on the column-major
+/// storage (contiguous slices, so the inner loop has no index checks). `false` if a pivot is not
+/// positive or not finite; `l` is then unspecified.
 pub fn cholesky_into<T: RealField + Copy, const N: usize>(p: &SMatrix<T, N, N>, l: &mut SMatrix<T, N, N>) -> bool {
-    l.fill(T::zero());
-    for i in 0..N {
-        for j in 0..=i {
-            let mut s = p[(i, j)];
-            for k in 0..j {
-                s -= l[(i, k)] * l[(j, k)];
-            }
-            if i == j {
-                if !(s > T::zero()) || !s.is_finite() {
-                    return false;
+    for j in 0..N {
+        for i in 0..N {
+            l[(i, j)] = if i >= j { p[(i, j)] } else { T::zero() };
+        }
+    }
+    let data = l.as_mut_slice();
+    for j in 0..N {
+        let (head, tail) = data.split_at_mut((j + 1) * N);
+        let Some(col_j) = head.get_mut(j * N..) else { return false };
+        let Some((pivot, below)) = col_j.get_mut(j..).and_then(|c| c.split_first_mut()) else { return false };
+        if !(*pivot > T::zero()) || !pivot.is_finite() {
+            return false;
+        }
+        *pivot = pivot.sqrt();
+        let inv = T::one() / *pivot;
+        for v in below.iter_mut() {
+            *v *= inv;
+        }
+        // Trailing columns k > j, rows k..: col_k -= l[k, j] * col_j.
+        for (kk, col_k) in tail.chunks_exact_mut(N).enumerate() {
+            let Some((&l_kj, rest)) = below.get(kk..).and_then(|c| c.split_first()) else { break };
+            if let Some(dst) = col_k.get_mut(j + 1 + kk..) {
+                if let Some((d0, drest)) = dst.split_first_mut() {
+                    *d0 -= l_kj * l_kj;
+                    for (a, b) in drest.iter_mut().zip(rest.iter()) {
+                        *a -= l_kj * *b;
+                    }
                 }
-                l[(i, i)] = s.sqrt();
-            } else {
-                l[(i, j)] = s / l[(j, j)];
             }
         }
     }
     true
 }
+
 /// Make `p` exactly symmetric: `(P + P^T) / 2`.
 pub fn symmetrize<T: RealField + Copy, const N: usize>(p: &mut SMatrix<T, N, N>) {
     let half = T::from_subset(&0.5);
@@ -120,6 +136,27 @@ pub fn symmetrize<T: RealField + Copy, const N: usize>(p: &mut SMatrix<T, N, N>)
             let v = (p[(i, j)] + p[(j, i)]) * half;
             p[(i, j)] = v;
             p[(j, i)] = v;
+        }
+    }
+}
+
+/// `m += w r r^T` on the lower triangle only (half the work of nalgebra's general `ger`, which
+/// was the largest cost of the UKF predict on the target); call [`mirror_lower`] once after the
+/// last term.
+pub fn add_outer_lower<T: RealField + Copy, const N: usize>(m: &mut SMatrix<T, N, N>, w: T, r: &SVector<T, N>) {
+    for j in 0..N {
+        let wr = w * r[j];
+        for i in j..N {
+            m[(i, j)] += wr * r[i];
+        }
+    }
+}
+
+/// Copy the lower triangle onto the upper one.
+pub fn mirror_lower<T: RealField + Copy, const N: usize>(m: &mut SMatrix<T, N, N>) {
+    for j in 0..N {
+        for i in (j + 1)..N {
+            m[(j, i)] = m[(i, j)];
         }
     }
 }

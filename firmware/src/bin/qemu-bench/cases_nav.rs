@@ -7,8 +7,10 @@
 
 use core::hint::black_box;
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+use subnav_shared::nav::strapdown::{Increments, propagate_error};
 use subnav_shared::nav::{NavConfig, NavFilter15, NavInit};
+use subnav_shared::ukf::pd::cholesky_into;
 use subnav_shared::wire::messages::ImuSample;
 
 use crate::Bench;
@@ -32,6 +34,21 @@ fn filter(cfg: NavConfig) -> Option<NavFilter15> {
 }
 
 pub fn run(b: &mut Bench) {
+    // The parts of the UKF predict: one sigma point through the error propagation (31 per
+    // predict) and the 15 x 15 Cholesky factor (one per predict and per update).
+    let mut inc = Increments::zero();
+    inc.dt_s = 0.1;
+    inc.dv_f = Vector3::new(0.1, 0.05, -0.98);
+    inc.dp_f = Vector3::new(0.01, 0.005, -0.05);
+    inc.c = Matrix3::identity() * 0.1;
+    inc.cc = Matrix3::identity() * 0.005;
+    inc.samples = 10;
+    let dx = SVector::<f32, 15>::from_fn(|i, _| 1e-3 * (i as f32 + 1.0));
+    b.run("nav.propagate_error_one_point", 500, || propagate_error(black_box(&dx), black_box(&inc), 0.99)[0] > 0.0);
+    let a = SMatrix::<f32, 15, 15>::from_fn(|i, j| if i == j { 2.0 } else { 0.1 / (1.0 + (i + j) as f32) });
+    let p = a * a.transpose();
+    let mut l = SMatrix::<f32, 15, 15>::zeros();
+    b.run("ukf.cholesky_15", 500, || cholesky_into(black_box(&p), &mut l));
     // Strapdown only: covariance step pushed out of the loop.
     let mut cfg = NavConfig::default().adaptive();
     cfg.cov_decimation = u32::MAX;
