@@ -23,7 +23,7 @@ pub fn quat_from_rotation_vector(phi_rad: &Vector3<f32>) -> UnitQuaternion<f32> 
         return UnitQuaternion::new_unchecked(Quaternion::new(f32::NAN, f32::NAN, f32::NAN, f32::NAN));
     }
     let (c, k) = if h2 <= H2_MAX {
-        // Truncation at |h| = pi/4: cos 2.5e-8, sin(h)/h 8e-12 (the next terms).
+        // Truncation at |h| = pi/4: cos 2.5e-8, sin(h)/h 2.2e-9 (the next terms).
         let c = 1.0 + h2 * (-0.5 + h2 * (1.0 / 24.0 + h2 * (-1.0 / 720.0 + h2 * (1.0 / 40_320.0))));
         let sinc = 1.0 + h2 * (-1.0 / 6.0 + h2 * (1.0 / 120.0 + h2 * (-1.0 / 5040.0 + h2 * (1.0 / 362_880.0))));
         // sin(h) / |phi| = sinc(h) / 2.

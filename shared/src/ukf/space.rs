@@ -68,6 +68,10 @@ pub trait AngleScalar: RealField + Copy {
 
 impl AngleScalar for f32 {
     fn sin_cos_rad(self) -> (f32, f32) {
+        // The phase conversion would map NaN/inf to a finite angle; keep NaN propagating.
+        if !self.is_finite() {
+            return (f32::NAN, f32::NAN);
+        }
         crate::ephemeris::phase::sincos_rad(self)
     }
 }
@@ -132,5 +136,7 @@ mod tests {
             worst = worst.max(wrap_pi(f64::from(m32) - m64).abs());
         }
         assert!(worst < 1e-6, "worst {worst}");
+        let bad = [SVector::<f32, 1>::new(0.1), SVector::<f32, 1>::new(f32::NAN)];
+        assert!(AngleSpace::mean(&bad, &[0.5, 0.5])[0].is_nan());
     }
 }
