@@ -2,18 +2,18 @@
 //! and telemetry. The board calls [`App::boot`] once, then on every tick
 //! [`App::sensor_tick`] (when it has sensors) and [`App::poll`], with its monotonic time.
 //!
-//! Rates: IMU 200 Hz, polarization 10 Hz, depth 10 Hz (`subnav_shared::head`), navigation
+//! Rates: IMU 200 Hz, polarization 10 Hz, depth 10 Hz (`subnav_core::head`), navigation
 //! telemetry `nav_rate_hz` (configurable 1..=50), health 1 Hz. A failed read is counted and
 //! reported as a fault (rate-limited) and the estimator goes on with the other sensors.
 
-use subnav_shared::wire::{
+use subnav_wire::{
     Board, Command, CommandAck, ConfigItem, Decoded, Downlink, Fault, FaultKind, FaultSource, FilterHealth, FrameDecoder,
     MAX_DOWNLINK_FRAME, Refusal, Uplink, boot_message,
 };
 
-use subnav_shared::ephemeris::Observer;
-use subnav_shared::head;
-use subnav_shared::wire::{PolarizationSample, RawSample};
+use subnav_core::ephemeris::Observer;
+use subnav_core::head;
+use subnav_wire::{PolarizationSample, RawSample};
 
 use crate::estimator::Estimator;
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
@@ -399,7 +399,7 @@ fn occluded_units(readings: &[(usize, [i16; 4])]) -> u8 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use subnav_shared::wire::{self, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, NavSolution};
+    use subnav_wire::{self as wire, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, NavSolution};
 
     fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
         let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
@@ -496,12 +496,12 @@ mod tests {
     }
 
     impl SensorSuite for StillHead {
-        fn read_imu(&mut self, t_us: u64) -> Result<subnav_shared::wire::ImuSample, SensorFault> {
+        fn read_imu(&mut self, t_us: u64) -> Result<subnav_wire::ImuSample, SensorFault> {
             self.imu_reads += 1;
             if self.imu_reads % 50 == 0 {
                 return Err(SensorFault { source: FaultSource::Imu, kind: FaultKind::BusTimeout });
             }
-            Ok(subnav_shared::wire::ImuSample { t_us, gyro_radps: [0.0; 3], accel_mps2: [0.0, 0.0, -9.81], temp_c: 15.0 })
+            Ok(subnav_wire::ImuSample { t_us, gyro_radps: [0.0; 3], accel_mps2: [0.0, 0.0, -9.81], temp_c: 15.0 })
         }
         fn read_polarization(&mut self, _t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
             if unit == 2 {
@@ -509,8 +509,8 @@ mod tests {
             }
             Ok([1000, 1000, 1000, 1000])
         }
-        fn read_depth(&mut self, t_us: u64, _rho: f32) -> Result<subnav_shared::wire::DepthSample, SensorFault> {
-            Ok(subnav_shared::wire::DepthSample { t_us, pressure_pa: 101_325.0 + 12.0 * 1025.0 * 9.81, temp_c: 10.0, depth_m: 12.0 })
+        fn read_depth(&mut self, t_us: u64, _rho: f32) -> Result<subnav_wire::DepthSample, SensorFault> {
+            Ok(subnav_wire::DepthSample { t_us, pressure_pa: 101_325.0 + 12.0 * 1025.0 * 9.81, temp_c: 10.0, depth_m: 12.0 })
         }
     }
 
@@ -531,7 +531,7 @@ mod tests {
         assert!(faults.len() < 100, "faults must be rate-limited, got {}", faults.len());
         let navs: Vec<&NavSolution> = msgs.iter().filter_map(|m| if let Uplink::Nav(n) = m { Some(n) } else { None }).collect();
         let last = navs.last().unwrap();
-        assert_eq!(last.mode, subnav_shared::wire::NavMode::Aided);
+        assert_eq!(last.mode, subnav_wire::NavMode::Aided);
         assert!(navs.iter().all(|n| n.pos_ned_m.iter().chain(n.vel_ned_mps.iter()).chain(n.att_nb_wxyz.iter()).all(|v| v.is_finite())));
         assert!((last.pos_ned_m[2] - 12.0).abs() < 0.2, "{:?}", last.pos_ned_m);
         // Unpolarized light gives no compass fix, with a reason.

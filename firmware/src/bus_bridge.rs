@@ -1,5 +1,5 @@
 //! embedded-hal 1.0 `I2c` and `SpiDevice` implementations that carry each transaction over a
-//! byte link to the host's chip models (see `subnav_shared::bridge`). Used by the QEMU board;
+//! byte link to the host's chip models (see `subnav_wire::bridge`). Used by the QEMU board;
 //! the drivers cannot tell the difference from a real bus.
 //!
 //! Every request carries the firmware's *logical* time (set with [`BridgeClient::set_time`] at
@@ -9,10 +9,10 @@
 use core::cell::RefCell;
 
 use embedded_hal::{i2c, spi};
-use subnav_shared::bridge::{
+use subnav_wire::bridge::{
     Bus, BusFault, BusRequest, BusResponse, Bytes, MAX_OP_BYTES, MAX_OPS, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME, Op, ReadData,
 };
-use subnav_shared::wire::{self, Decoded, FrameDecoder};
+use subnav_wire::{self as wire, Decoded, FrameDecoder};
 
 /// The byte link to the host (a UART on the QEMU board, a buffer in tests).
 pub trait ByteLink {

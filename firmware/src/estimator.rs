@@ -15,11 +15,11 @@
 //! ([`NavFilter15::reset_heading`]). Depth is positive down (NED z).
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
-use subnav_shared::compass::{self, CompassInput, UnitModel};
-use subnav_shared::ephemeris::{Observer, delta_t_estimate_s};
-use subnav_shared::head;
-use subnav_shared::nav::{NavConfig, NavError, NavFilter15, NavInit};
-use subnav_shared::wire::{CompassReport, FilterHealth, ImuSample, NavMode, NavSolution};
+use subnav_core::compass::{self, CompassInput, UnitModel};
+use subnav_core::ephemeris::{Observer, delta_t_estimate_s};
+use subnav_core::head;
+use subnav_core::nav::{NavConfig, NavError, NavFilter15, NavInit};
+use subnav_wire::{CompassReport, FilterHealth, ImuSample, NavMode, NavSolution};
 
 const ALIGN_S: f32 = 1.0;
 const ALIGN_MAX_S: f32 = 10.0;
@@ -318,7 +318,7 @@ impl Estimator {
         match nav.update_heading(t_us, heading_rad, Some(sigma)) {
             Ok(rep) if rep.accepted => self.rejected_run = AngleRun::default(),
             Ok(_) => {
-                let innovation = subnav_shared::ukf::wrap_pi(heading_rad - yaw_before);
+                let innovation = subnav_core::ukf::wrap_pi(heading_rad - yaw_before);
                 self.rejected_run.push(innovation, sigma);
                 if let Some((mean, sigma)) = self.rejected_run.consensus(RESET_YAW_FIXES) {
                     let yaw = nav.nominal().yaw_rad() + mean;
@@ -415,7 +415,7 @@ fn filter_storage(cfg: NavConfig) -> Option<NavFilter15> {
 
 /// The covariance a static alignment leaves: levelling on the mean specific force turns the
 /// accelerometer bias `b` (body) into a tilt error that cancels it at rest. With the error model
-/// of `subnav_shared::nav::strapdown` (`dv' = dv + (Exp(phi) - I) f_n T - R dba T`, `f_n = [0, 0,
+/// of `subnav_core::nav::strapdown` (`dv' = dv + (Exp(phi) - I) f_n T - R dba T`, `f_n = [0, 0,
 /// -g]` at rest) cancellation means `phi x f_n = R b`, i.e. `phi_N = (R b)_E / g`,
 /// `phi_E = -(R b)_N / g`: `phi = M b` with `M = [[0, 1, 0], [-1, 0, 0], [0, 0, 0]] R / g` and
 /// `R` the yaw rotation. So `P_phi,phi += M P_b M^T`, `P_phi,b = M P_b`. Without this the filter
@@ -423,7 +423,7 @@ fn filter_storage(cfg: NavConfig) -> Option<NavFilter15> {
 /// sigma per second (measured: 0.2 m/s per s), which lets every aiding update swing the
 /// unobserved horizontal velocity.
 fn aligned_covariance(p0: &SMatrix<f32, 15, 15>, yaw_rad: f32, sigma_accel_bias: f32, g: f32) -> SMatrix<f32, 15, 15> {
-    use subnav_shared::nav::state::{ATT, BA};
+    use subnav_core::nav::state::{ATT, BA};
     let (s, c) = (libm::sinf(yaw_rad), libm::cosf(yaw_rad));
     let r = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
     let swap = Matrix3::new(0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0);

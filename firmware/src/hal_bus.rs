@@ -8,7 +8,7 @@
 
 use embedded_hal::i2c::{self, I2c, Operation as I2cOp};
 use embedded_hal::spi::{self, Operation as SpiOp, SpiDevice};
-use subnav_shared::wire::FaultKind;
+use subnav_wire::FaultKind;
 
 use crate::drivers::BusErrorKind;
 

@@ -14,7 +14,7 @@
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 use embedded_hal::spi::SpiDevice;
-use subnav_shared::wire::{DepthSample, FaultKind, FaultSource, ImuSample};
+use subnav_wire::{DepthSample, FaultKind, FaultSource, ImuSample};
 
 use crate::drivers::ads1115::{AdcConfig, PolarizationAdcs, UNITS};
 use crate::drivers::icm42688::{self, Icm42688};
@@ -23,7 +23,7 @@ use crate::drivers::{BusErrorKind, Error, StuckDetector};
 use crate::sensors::{SensorFault, SensorSuite};
 
 /// Polarization grid period (µs) and how long before each grid point a scan starts.
-const SCAN_PERIOD_US: u64 = 1_000_000 / subnav_shared::head::POLARIZATION_RATE_HZ as u64;
+const SCAN_PERIOD_US: u64 = 1_000_000 / subnav_core::head::POLARIZATION_RATE_HZ as u64;
 const SCAN_LEAD_US: u64 = 15_000;
 /// A polarization scan older than this is not used (µs).
 const SCAN_MAX_AGE_US: u64 = 300_000;

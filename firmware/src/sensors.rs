@@ -2,7 +2,7 @@
 //! implements [`SensorSuite`] on top of its drivers (real buses on the STM32 board, the host
 //! bridge under QEMU); host tests implement it with fakes.
 
-use subnav_shared::wire::{DepthSample, FaultKind, FaultSource, ImuSample};
+use subnav_wire::{DepthSample, FaultKind, FaultSource, ImuSample};
 
 /// A failed sensor read, as reported in fault telemetry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -1,6 +1,6 @@
 //! Telemetry output: frames uplink messages and hands them to a board's byte sink.
 
-use subnav_shared::wire::{self, MAX_UPLINK_FRAME, Uplink};
+use subnav_wire::{self as wire, MAX_UPLINK_FRAME, Uplink};
 
 /// Where framed telemetry bytes go (a UART, an RTT channel, a test buffer).
 pub trait TelemetrySink {

@@ -32,10 +32,10 @@ use subnav_firmware::drivers::ads1115::{self as adc, AdcConfig, PgaRange, Polari
 use subnav_firmware::drivers::icm42688::{self as imu, AccelRange, Config as ImuConfig, GyroRange, Icm42688, Odr};
 use subnav_firmware::drivers::ms5837::{DepthParams, Ms5837, Osr};
 use subnav_firmware::drivers::{Error, StuckDetector};
-use subnav_host::chips::icm42688::Stuck;
-use subnav_host::chips::{Ads1115Model, BusFault, ChipSet, I2cChip, Icm42688Model, ImuInput, Ms5837Model, PressureInput, SpiChip};
-use subnav_shared::bridge::{BusRequest, MAX_REQUEST_FRAME};
-use subnav_shared::wire::{self, Decoded, FaultKind, FrameDecoder};
+use subnav_sil::chips::icm42688::Stuck;
+use subnav_sil::chips::{Ads1115Model, BusFault, ChipSet, I2cChip, Icm42688Model, ImuInput, Ms5837Model, PressureInput, SpiChip};
+use subnav_wire::bridge::{BusRequest, MAX_REQUEST_FRAME};
+use subnav_wire::{self as wire, Decoded, FaultKind, FrameDecoder};
 
 // ---------------------------------------------------------------------------------------------
 // Simulated time and embedded-hal adapters over the chip traits.
@@ -457,7 +457,7 @@ impl ByteLink for Loopback {
         for &b in bytes {
             if let Decoded::Message(req) = self.dec.push::<BusRequest>(b) {
                 let resp = self.chips.handle(&req);
-                let mut buf = [0u8; subnav_shared::bridge::MAX_RESPONSE_FRAME];
+                let mut buf = [0u8; subnav_wire::bridge::MAX_RESPONSE_FRAME];
                 let frame = wire::encode(&resp, &mut buf).expect("response fits");
                 self.rx.extend(frame.iter().copied());
             }

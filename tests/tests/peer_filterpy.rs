@@ -1,4 +1,4 @@
-//! Peer check: `subnav_shared::ukf::Ukf` with adaptation off against FilterPy 2.0.0's
+//! Peer check: `subnav_core::ukf::Ukf` with adaptation off against FilterPy 2.0.0's
 //! `UnscentedKalmanFilter` + `MerweScaledSigmaPoints` (tests/peers/filterpy_ukf.py), same
 //! alpha/beta/kappa, on a nonlinear problem: a coordinated-turn target (heading wraps through
 //! +-pi) tracked by range and bearing to a beacon (bearing wraps), 300 steps, plus a range-only
@@ -10,8 +10,8 @@
 
 use std::process::Command;
 
-use subnav_shared::ukf::nalgebra::{SMatrix, SVector, Vector1};
-use subnav_shared::ukf::{Euclidean, MeasNoise, Space, Ukf, UkfConfig, wrap_pi};
+use subnav_core::ukf::nalgebra::{SMatrix, SVector, Vector1};
+use subnav_core::ukf::{Euclidean, MeasNoise, Space, Ukf, UkfConfig, wrap_pi};
 
 const STEPS: usize = 300;
 const DT: f64 = 0.5;

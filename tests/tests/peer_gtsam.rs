@@ -13,14 +13,14 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use serde_json::{Value, json};
-use subnav_host::fgo::factors::Factor;
-use subnav_host::fgo::nalgebra::{DMatrix, Matrix3, Vector3};
-use subnav_host::fgo::preintegration::{ImuParams, Preintegrated};
-use subnav_host::fgo::sim::{SimConfig, simulate};
-use subnav_host::fgo::smoother::{self, SmootherConfig, imu_pieces};
-use subnav_host::fgo::so3;
-use subnav_host::fgo::solver::{self, LmOptions};
-use subnav_host::fgo::state::{ImuBias, NavState};
+use subnav_base::so3;
+use subnav_fgo::factors::Factor;
+use subnav_fgo::nalgebra::{DMatrix, Matrix3, Vector3};
+use subnav_fgo::preintegration::{ImuParams, Preintegrated};
+use subnav_fgo::sim::{SimConfig, simulate};
+use subnav_fgo::smoother::{self, SmootherConfig, imu_pieces};
+use subnav_fgo::solver::{self, LmOptions};
+use subnav_fgo::state::{ImuBias, NavState};
 
 fn run_peer(script: &str, input: &Value) -> Value {
     let py = subnav_tests::peer_python();

@@ -1,4 +1,4 @@
-//! Peer check of `subnav_host::lmnn` against metric-learn 0.7.0 LMNN (scikit-learn < 1.8):
+//! Peer check of `subnav_topo::lmnn` against metric-learn 0.7.0 LMNN (scikit-learn < 1.8):
 //! stratified 70/30 splits with seeds 0-9 (made by scikit-learn in `tests/peers/metric_learn_lmnn.py`),
 //! StandardScaler fitted on the training part, LMNN with k = 3 and the default tuning, 3-NN on the
 //! test part. The Rust side fits on exactly the same splits.
@@ -16,8 +16,8 @@ use std::process::Command;
 use std::time::Instant;
 
 use serde_json::Value;
-use subnav_host::lmnn::{LmnnConfig, Scaler, accuracy, fit, predict};
-use subnav_shared::ukf::nalgebra::DMatrix;
+use subnav_core::ukf::nalgebra::DMatrix;
+use subnav_topo::lmnn::{LmnnConfig, Scaler, accuracy, fit, predict};
 
 struct Split {
     seed: i64,

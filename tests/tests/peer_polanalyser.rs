@@ -1,4 +1,4 @@
-//! Peer check of `subnav_host::polar_image` (demosaicing + Stokes) against polanalyser (PyPI,
+//! Peer check of `subnav_topo::polar_image` (demosaicing + Stokes) against polanalyser (PyPI,
 //! OpenCV bilinear demosaicing) on the same 16-bit IMX250MZR mosaic PNG: a smoothly varying
 //! synthetic field (known AoP/DoLP) and a rendered seafloor scene. Interior pixels (2-pixel
 //! border excluded: the two implementations pad the border differently) must agree to within
@@ -8,8 +8,8 @@ use std::f64::consts::PI;
 use std::process::Command;
 
 use serde_json::Value;
-use subnav_host::polar_image::mosaic::mosaic_from_stokes;
-use subnav_host::polar_image::{Mosaic, demosaic, stokes};
+use subnav_topo::polar_image::mosaic::mosaic_from_stokes;
+use subnav_topo::polar_image::{Mosaic, demosaic, stokes};
 
 fn peer(path: &std::path::Path) -> Value {
     let python = subnav_tests::peer_python();
@@ -75,8 +75,8 @@ fn synthetic_field_matches_polanalyser() {
 
 #[test]
 fn rendered_seafloor_matches_polanalyser() {
-    use subnav_host::topo::scene::{Scene, SceneConfig, coastal_water};
-    use subnav_shared::ukf::nalgebra::Vector3;
+    use subnav_core::ukf::nalgebra::Vector3;
+    use subnav_topo::scene::{Scene, SceneConfig, coastal_water};
     let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
     let (el, az) = (50f64.to_radians(), 150f64.to_radians());
     let sun = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), -el.sin());

@@ -1,4 +1,4 @@
-//! Peer check of the MCU ephemeris (`subnav_shared::ephemeris`, f32 + fixed-point phases) against
+//! Peer check of the MCU ephemeris (`subnav_core::ephemeris`, f32 + fixed-point phases) against
 //! pvlib 0.16.1 `spa_python` (the full NREL SPA in f64) on 10,000 random instants 2020-2100,
 //! latitudes within +-70 deg, random longitude, height, pressure and temperature.
 //! All instants go to one python call (`tests/peers/pvlib_spa.py`).
@@ -6,7 +6,7 @@
 use std::io::Write;
 use std::process::{Command, Stdio};
 
-use subnav_shared::ephemeris::{Atmosphere, Observer, delta_t_estimate_s, sun_position};
+use subnav_core::ephemeris::{Atmosphere, Observer, delta_t_estimate_s, sun_position};
 
 const N: usize = 10_000;
 /// 2020-01-01T00:00:00Z and 2100-01-01T00:00:00Z, POSIX µs.

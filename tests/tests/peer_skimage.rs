@@ -1,4 +1,4 @@
-//! Peer check of `subnav_host::ice::phasecorr` (phase correlation, DFT-upsampled sub-pixel peak)
+//! Peer check of `subnav_ice::phasecorr` (phase correlation, DFT-upsampled sub-pixel peak)
 //! against scikit-image 0.26.0 `phase_cross_correlation` with the same upsample factor, on 120
 //! image pairs (64x64 and 63x80 textures, sub-pixel Fourier shifts of up to +-12 px, additive
 //! noise). The bound: agreement within 0.01 px on every pair. Both must also be near the
@@ -9,7 +9,7 @@ use std::process::Command;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use subnav_host::ice::phasecorr::{Gray, PhaseCorrelator, Refinement, fourier_shift};
+use subnav_ice::phasecorr::{Gray, PhaseCorrelator, Refinement, fourier_shift};
 
 const UPSAMPLE: usize = 100;
 const MAX_DIFF_PX: f64 = 0.01 + 1e-9;

@@ -18,8 +18,8 @@
 
 use std::time::Duration;
 
-use subnav_host::sim::dive::{DiveOptions, DiveResult, run_dive};
-use subnav_host::sim::{FaultPlan, Scenario};
+use subnav_sil::dive::{DiveOptions, DiveResult, run_dive};
+use subnav_sil::{FaultPlan, Scenario};
 
 fn elf() -> std::path::PathBuf {
     subnav_tests::qemu_elf()
@@ -86,14 +86,14 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
 /// board 1,100 B): today's figure is 29,440 B (docs/PERFORMANCE.md, "Firmware size and RAM").
 #[test]
 fn the_stack_peak_is_painted_and_reported() {
-    use subnav_host::link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+    use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
     let sc = Scenario { duration_s: 12.0, ..Scenario::default() };
     let mut cfg = QemuConfig::new(elf());
     cfg.run_ms = Some(12_000);
     cfg.timeout = Duration::from_secs(300);
     cfg.board_args = sc.board_args();
     let mut logs = Vec::new();
-    let (outcome, _) = run_with_bus(&cfg, Box::new(subnav_host::sim::SimHead::new(&sc)), |e, _| {
+    let (outcome, _) = run_with_bus(&cfg, Box::new(subnav_sil::SimHead::new(&sc)), |e, _| {
         if let QemuEvent::Log(l) = e {
             logs.push(l.message);
         }

@@ -3,9 +3,9 @@
 
 use std::time::Duration;
 
-use subnav_host::link::LinkEvent;
-use subnav_host::link::qemu::{QemuConfig, QemuEvent, QemuOutcome, run};
-use subnav_shared::wire::{self, Command, CommandAck, ConfigItem, FaultKind, PROTOCOL_VERSION, Uplink};
+use subnav_link::LinkEvent;
+use subnav_link::qemu::{QemuConfig, QemuEvent, QemuOutcome, run};
+use subnav_wire::{self as wire, Command, CommandAck, ConfigItem, FaultKind, PROTOCOL_VERSION, Uplink};
 
 fn config(run_ms: u64) -> QemuConfig {
     let mut c = QemuConfig::new(subnav_tests::qemu_elf());
@@ -93,7 +93,7 @@ fn runs_are_deterministic() {
         let (_, _, outcome) = collect(&cfg);
         assert!(outcome.success());
         let bytes = std::fs::read(&p).unwrap();
-        let mut dec = subnav_host::link::UplinkDecoder::new();
+        let mut dec = subnav_link::UplinkDecoder::new();
         let mut msgs = vec![];
         dec.feed(&bytes, |e| {
             if let LinkEvent::Message(mut m) = e {
@@ -147,7 +147,7 @@ fn recorded_run_with_spliced_garbage_decodes_every_intact_frame() {
     }
     let path = dir.join("spliced.bin");
     std::fs::write(&path, &spliced).unwrap();
-    let mut dec = subnav_host::link::UplinkDecoder::new();
+    let mut dec = subnav_link::UplinkDecoder::new();
     let mut got = vec![];
     dec.feed(&spliced, |e| {
         if let LinkEvent::Message(m) = e {

@@ -7,11 +7,11 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use subnav_host::export::{TimeBase, mcap::write, schema};
-use subnav_host::link::LinkEvent;
-use subnav_host::link::defmt_log::DefmtTable;
-use subnav_host::link::qemu::{QemuConfig, QemuEvent, run};
-use subnav_host::record::{read_file, session::Session, tap::QemuRecorder};
+use subnav_link::LinkEvent;
+use subnav_link::defmt_log::DefmtTable;
+use subnav_link::export::{TimeBase, mcap::write, schema};
+use subnav_link::qemu::{QemuConfig, QemuEvent, run};
+use subnav_link::record::{read_file, session::Session, tap::QemuRecorder};
 
 #[test]
 fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {

@@ -90,7 +90,7 @@ impl Toolchain {
         Ok(Toolchain::DebianBuildStd)
     }
 
-    /// Build one board (release) and return the ELF path.
+    /// Build one board (the `firmware` profile: size-optimised, fat LTO) and return the ELF path.
     pub fn build(&self, board: Board) -> Result<PathBuf> {
         let target_dir = root().join("target").join("firmware");
         let mut c = match self {
@@ -117,14 +117,14 @@ impl Toolchain {
         };
         c.current_dir(root())
             .env("DEFMT_LOG", std::env::var("DEFMT_LOG").unwrap_or_else(|_| "info".into()))
-            .args(["--release", "--target", TARGET, "-p", "subnav-firmware", "--bin", board.bin()])
+            .args(["--profile", "firmware", "--target", TARGET, "-p", "subnav-firmware", "--bin", board.bin()])
             .args(["--features", board.feature()])
             .arg("--target-dir")
             .arg(&target_dir);
         run(&mut c).with_context(|| format!("building the {} firmware", board.bin()))?;
         // Each board is built with its own features; keep a copy of each ELF so that building
         // the other board does not invalidate the path we return.
-        let elf = target_dir.join(TARGET).join("release").join(board.bin());
+        let elf = target_dir.join(TARGET).join("firmware").join(board.bin());
         let keep = target_dir.join(format!("subnav-{}.elf", board.bin()));
         std::fs::copy(&elf, &keep).with_context(|| format!("copying {}", elf.display()))?;
         Ok(keep)

@@ -36,7 +36,7 @@ use subnav_firmware::hal_bus::{HalI2c, HalSpi};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_shared::wire::Board;
+use subnav_wire::Board;
 
 const HSE_HZ: u32 = 8_000_000;
 const CORE_HZ: u32 = 168_000_000;

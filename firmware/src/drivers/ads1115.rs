@@ -2,7 +2,7 @@
 //!
 //! Wiring: ADC `u` (address 0x48 + u) serves polarization unit `u`; its single-ended inputs
 //! AIN0..AIN3 carry the photodiodes behind the 0, 45, 90 and 135 deg polarizers, the order of
-//! `subnav_shared::wire::PolarizationSample::counts`. 4 units x 4 channels = 16 channels.
+//! `subnav_wire::PolarizationSample::counts`. 4 units x 4 channels = 16 channels.
 //!
 //! The chip itself is driven by the maintained `ads1x1x` crate (eldruin, embedded-hal 1.0,
 //! no_std): one-shot conversions with the chosen PGA range and data rate, polled through its

@@ -13,7 +13,7 @@
 //! telemetry [`FaultKind`].
 //!
 //! Axes: every driver reports in the chip's own axes. The sensor head mounts the IMU with its
-//! axes equal to the body FRD axes (`subnav_shared::wire` conventions); a different mounting is
+//! axes equal to the body FRD axes (`subnav_wire` conventions); a different mounting is
 //! a rotation the application applies, not the driver.
 //!
 //! Time: drivers never read a clock. Where the chip needs time (ICM-42688-P reset, MS5837
@@ -25,7 +25,7 @@ pub mod ads1115;
 pub mod icm42688;
 pub mod ms5837;
 
-use subnav_shared::wire::FaultKind;
+use subnav_wire::FaultKind;
 
 /// A driver error: the bus failed, or the chip answered something the driver cannot use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -52,7 +52,7 @@ pub trait BusErrorKind {
 
 impl BusErrorKind for crate::bus_bridge::BridgeError {
     fn fault_kind(&self) -> FaultKind {
-        use subnav_shared::bridge::BusFault;
+        use subnav_wire::bridge::BusFault;
         match self.0 {
             BusFault::Nack => FaultKind::BusNack,
             BusFault::Timeout => FaultKind::BusTimeout,
@@ -147,7 +147,7 @@ mod tests {
     #[test]
     fn bridge_errors_map_to_fault_kinds() {
         use crate::bus_bridge::BridgeError;
-        use subnav_shared::bridge::BusFault;
+        use subnav_wire::bridge::BusFault;
         assert_eq!(Error::Bus(BridgeError(BusFault::Nack)).fault_kind(), FaultKind::BusNack);
         assert_eq!(Error::Bus(BridgeError(BusFault::Timeout)).fault_kind(), FaultKind::BusTimeout);
         assert_eq!(Error::<BridgeError>::BadCrc { expected: 1, computed: 2 }.fault_kind(), FaultKind::BadCrc);

@@ -3,7 +3,7 @@
 
 use core::hint::black_box;
 
-use subnav_shared::wire::{self, MAX_UPLINK_FRAME, NavMode, NavSolution, Uplink};
+use subnav_wire::{self as wire, MAX_UPLINK_FRAME, NavMode, NavSolution, Uplink};
 
 use crate::Bench;
 

@@ -7,8 +7,8 @@
 
 use core::hint::black_box;
 
-use subnav_shared::compass::{self, CompassConfig, CompassInput, NoiseModel, UnitModel, unit::ring_geometry};
-use subnav_shared::ephemeris::{self, Atmosphere, Observer};
+use subnav_core::compass::{self, CompassConfig, CompassInput, NoiseModel, UnitModel, unit::ring_geometry};
+use subnav_core::ephemeris::{self, Atmosphere, Observer};
 
 use crate::Bench;
 

@@ -8,10 +8,10 @@
 use core::hint::black_box;
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
-use subnav_shared::nav::strapdown::{Increments, propagate_error};
-use subnav_shared::nav::{NavConfig, NavFilter15, NavInit};
-use subnav_shared::ukf::pd::cholesky_into;
-use subnav_shared::wire::messages::ImuSample;
+use subnav_core::nav::strapdown::{Increments, propagate_error};
+use subnav_core::nav::{NavConfig, NavFilter15, NavInit};
+use subnav_core::ukf::pd::cholesky_into;
+use subnav_wire::messages::ImuSample;
 
 use crate::Bench;
 

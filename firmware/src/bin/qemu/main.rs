@@ -44,7 +44,7 @@ use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSp
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_shared::wire::{Board, Command, ConfigItem, Downlink};
+use subnav_wire::{Board, Command, ConfigItem, Downlink};
 
 mod cmsdk_uart;
 mod semihost_pipe;

@@ -1,0 +1,592 @@
+//! [`NavFilter`]: nominal state + error-state UKF, the propagation entry point and the plumbing
+//! shared by the per-sensor updates (`heading.rs`, `depth.rs`, `velocity.rs`, `position.rs`).
+
+use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+
+use crate::ukf::gate::chi2_999;
+use crate::ukf::{AdaptConfig, MeasNoise, Ukf, UkfConfig, UkfError, UpdateReport};
+use subnav_wire::messages::{ImuSample, NavMode, NavSolution};
+
+use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, set_seg, yaw_of};
+use super::strapdown::{self, Increments};
+
+/// Update kinds, in the order of `FilterHealth::nis` / `r_diag`.
+pub const KIND_HEADING: usize = 0;
+pub const KIND_DEPTH: usize = 1;
+pub const KIND_VELOCITY: usize = 2;
+pub const KIND_POSITION: usize = 3;
+
+/// Noise and gate of one aiding sensor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SensorConfig {
+    /// Default 1-sigma noise per axis (unit of the measurement).
+    pub sigma: f32,
+    /// Floor for an adapted R, as a 1-sigma.
+    pub sigma_floor: f32,
+    /// Chi-square gate on the NIS (`f32::INFINITY` = no gate).
+    pub gate: f32,
+    /// Gate floor: state part of the gating covariance capped at this multiple of R.
+    pub gate_state_max: f32,
+    /// Lift the cap after this many consecutive rejections (0 = never).
+    pub gate_release_after: u32,
+    /// Sage-Husa R adaptation for this sensor (if on in the UKF config).
+    pub adapt: bool,
+    /// Error states the fading factor may scale on this sensor's updates (bit i = state i).
+    pub fading_mask: u64,
+}
+
+const fn bits(idx: &[usize]) -> u64 {
+    let mut m = 0u64;
+    let mut i = 0;
+    while i < idx.len() {
+        m |= 1u64 << idx[i];
+        i += 1;
+    }
+    m
+}
+
+impl SensorConfig {
+    pub(crate) fn noise<const M: usize>(&self) -> MeasNoise<f32, M> {
+        let mut n = MeasNoise::new(SMatrix::<f32, M, M>::identity() * (self.sigma * self.sigma))
+            .with_gate(self.gate, self.gate_state_max, self.gate_release_after)
+            .with_floor(self.sigma_floor * self.sigma_floor);
+        n.adapt = self.adapt;
+        n.fading_mask = self.fading_mask;
+        n
+    }
+}
+
+/// Navigation filter configuration. [`NavConfig::default`] is the sensor head's tuning.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavConfig {
+    /// UKF parameters and the adaptive-layer switches.
+    pub ukf: UkfConfig<f32>,
+    /// Nominal IMU rate (used for the nominal covariance interval).
+    pub imu_rate_hz: f32,
+    /// Covariance (UKF predict) every this many IMU samples; updates flush a partial interval.
+    pub cov_decimation: u32,
+    pub gravity_mps2: f32,
+    /// IMU samples further apart than this are not integrated (clock jump); counted.
+    pub max_imu_dt_s: f32,
+    /// Plausibility limits of an IMU sample (beyond: rejected like a non-finite one).
+    pub max_gyro_radps: f32,
+    pub max_accel_mps2: f32,
+    /// Gyro angle random walk, rad/sqrt(s).
+    pub gyro_arw: f32,
+    /// Accelerometer velocity random walk, m/s/sqrt(s).
+    pub accel_vrw: f32,
+    /// Position random walk (model error), m/sqrt(s).
+    pub pos_rw: f32,
+    /// Gyro bias random walk, rad/s/sqrt(s).
+    pub gyro_bias_rw: f32,
+    /// Accelerometer bias random walk, m/s^2/sqrt(s).
+    pub accel_bias_rw: f32,
+    /// First-order Markov gyro drift (18-state): steady-state sigma (rad/s) and time constant (s).
+    pub markov_sigma: f32,
+    pub markov_tau_s: f32,
+    /// Initial 1-sigma of the error groups.
+    pub init_sigma_att_rad: [f32; 3],
+    pub init_sigma_vel_mps: f32,
+    pub init_sigma_pos_m: f32,
+    pub init_sigma_gyro_bias: f32,
+    pub init_sigma_accel_bias: f32,
+    pub heading: SensorConfig,
+    pub depth: SensorConfig,
+    pub velocity: SensorConfig,
+    pub position: SensorConfig,
+    /// Mode falls back to `Inertial` when no aiding update was accepted for this long.
+    pub aided_timeout_s: f32,
+}
+
+impl Default for NavConfig {
+    fn default() -> Self {
+        let mut ukf = UkfConfig::plain(0.5, 2.0, 0.0);
+        ukf.p_floor = 1e-12;
+        ukf.p_rel_floor = 1e-9;
+        ukf.q_floor = 1e-14;
+        Self {
+            ukf,
+            imu_rate_hz: 100.0,
+            cov_decimation: 10,
+            gravity_mps2: 9.81,
+            max_imu_dt_s: 0.1,
+            max_gyro_radps: 35.0,
+            max_accel_mps2: 160.0,
+            gyro_arw: 0.003,
+            accel_vrw: 0.003,
+            pos_rw: 0.005,
+            gyro_bias_rw: 2e-5,
+            accel_bias_rw: 1e-4,
+            markov_sigma: 1e-4,
+            markov_tau_s: 300.0,
+            init_sigma_att_rad: [0.02, 0.02, 0.1],
+            init_sigma_vel_mps: 0.1,
+            init_sigma_pos_m: 1.0,
+            init_sigma_gyro_bias: 0.002,
+            init_sigma_accel_bias: 0.05,
+            heading: SensorConfig {
+                sigma: 0.01,
+                sigma_floor: 0.003,
+                gate: chi2_999(1),
+                gate_state_max: 16.0,
+                gate_release_after: 10,
+                adapt: true,
+                fading_mask: bits(&[0, 1, 2, 9, 10, 11]),
+            },
+            depth: SensorConfig {
+                sigma: 0.05,
+                sigma_floor: 0.01,
+                gate: chi2_999(1),
+                gate_state_max: 16.0,
+                gate_release_after: 10,
+                adapt: true,
+                fading_mask: bits(&[5, 8]),
+            },
+            velocity: SensorConfig {
+                sigma: 0.02,
+                sigma_floor: 0.005,
+                gate: chi2_999(3),
+                gate_state_max: 16.0,
+                gate_release_after: 10,
+                adapt: true,
+                fading_mask: bits(&[0, 1, 2, 3, 4, 5]),
+            },
+            position: SensorConfig {
+                sigma: 1.0,
+                sigma_floor: 0.01,
+                gate: chi2_999(3),
+                gate_state_max: 16.0,
+                gate_release_after: 3,
+                adapt: false,
+                fading_mask: bits(&[3, 4, 5, 6, 7, 8]),
+            },
+            aided_timeout_s: 5.0,
+        }
+    }
+}
+
+impl NavConfig {
+    /// The adaptive (AUKF) variant of a configuration: Sage-Husa R estimation and the fading
+    /// factor on (Q adaptation stays off: the aiding sensors observe too little of the 15-state
+    /// process noise to estimate it; it can be switched on in `ukf.adapt`).
+    pub fn adaptive(mut self) -> Self {
+        self.ukf.adapt = AdaptConfig {
+            b: 0.95,
+            k0: 20,
+            r_cov: true,
+            fading: true,
+            fading_s: 4.0,
+            lambda0: 1.0,
+            lambda_max: 3.0,
+            rho: 0.95,
+            ..AdaptConfig::plain()
+        };
+        self
+    }
+
+    /// Nominal covariance interval, s.
+    pub fn cov_dt_s(&self) -> f32 {
+        self.cov_decimation.max(1) as f32 / self.imu_rate_hz
+    }
+
+    fn is_valid(&self) -> bool {
+        let pos = |v: f32| v.is_finite() && v > 0.0;
+        pos(self.imu_rate_hz)
+            && pos(self.gravity_mps2)
+            && pos(self.max_imu_dt_s)
+            && pos(self.markov_tau_s)
+            && [self.heading, self.depth, self.velocity, self.position]
+                .iter()
+                .all(|s| pos(s.sigma) && s.sigma_floor >= 0.0 && s.gate > 0.0 && s.gate_state_max > 0.0)
+    }
+}
+
+/// Initial state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavInit {
+    pub t_us: u64,
+    pub att_nb: UnitQuaternion<f32>,
+    pub vel_ned_mps: Vector3<f32>,
+    pub pos_ned_m: Vector3<f32>,
+}
+
+/// Why a call had no effect.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NavError {
+    /// Configuration out of range.
+    BadConfig,
+    /// NaN / Inf (or implausibly large) sample: rejected, state untouched, counted.
+    NonFinite,
+    /// Sample time not after the previous one, or a gap longer than `max_imu_dt_s`.
+    BadTime,
+    /// The UKF refused the step (state untouched).
+    Filter(UkfError),
+}
+
+impl From<UkfError> for NavError {
+    fn from(e: UkfError) -> Self {
+        match e {
+            UkfError::NonFiniteInput => NavError::NonFinite,
+            other => NavError::Filter(other),
+        }
+    }
+}
+
+/// The sensor head's navigation filter: `N` = 15 (or 18 with Markov gyro drift) error states,
+/// `S = 2N + 1` sigma points. Use [`NavFilter15`] / [`NavFilter18`].
+#[derive(Debug, Clone)]
+pub struct NavFilter<const N: usize, const S: usize> {
+    pub(crate) cfg: NavConfig,
+    pub(crate) ukf: Ukf<f32, N, S>,
+    pub(crate) nom: NominalState,
+    pub(crate) inc: Increments,
+    pub(crate) noise_heading: MeasNoise<f32, 1>,
+    pub(crate) noise_depth: MeasNoise<f32, 1>,
+    pub(crate) noise_vel: MeasNoise<f32, 3>,
+    pub(crate) noise_pos: MeasNoise<f32, 3>,
+    pub(crate) t_us: u64,
+    pub(crate) last_imu_t_us: Option<u64>,
+    pub(crate) last_aided_t_us: Option<u64>,
+    pub(crate) nis: [f32; 4],
+    pub(crate) imu_rejects: u32,
+    pub(crate) time_rejects: u32,
+    pub(crate) lambda: f32,
+}
+
+pub type NavFilter15 = NavFilter<15, 31>;
+pub type NavFilter18 = NavFilter<18, 37>;
+
+fn group_diag<const N: usize>(d: &mut SVector<f32, N>, start: usize, v: f32) {
+    set_seg(d, start, &Vector3::new(v, v, v));
+}
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// A filter at `init` (N must be 15 or 18).
+    pub fn new(cfg: NavConfig, init: NavInit) -> Result<Self, NavError> {
+        let (nom, p0) = Self::initial(&cfg, &init)?;
+        let ukf = Ukf::new(cfg.ukf, SVector::zeros(), SMatrix::from_diagonal(&p0), Self::nominal_q(&cfg))?;
+        Ok(Self {
+            cfg,
+            ukf,
+            nom,
+            inc: Increments::zero(),
+            noise_heading: cfg.heading.noise(),
+            noise_depth: cfg.depth.noise(),
+            noise_vel: cfg.velocity.noise(),
+            noise_pos: cfg.position.noise(),
+            t_us: init.t_us,
+            last_imu_t_us: None,
+            last_aided_t_us: None,
+            nis: [0.0; 4],
+            imu_rejects: 0,
+            time_rejects: 0,
+            lambda: 1.0,
+        }
+        .with_k0(cfg.ukf.adapt.k0))
+    }
+
+    /// Re-initialise in place, exactly as [`NavFilter::new`] would build the filter (on failure
+    /// it is left unchanged). The sensor head uses this at the end of its alignment: building a
+    /// second filter by value cost 26 KB of stack on the M4F.
+    pub fn reinit(&mut self, cfg: NavConfig, init: NavInit) -> Result<(), NavError> {
+        let (nom, p0) = Self::initial(&cfg, &init)?;
+        self.ukf.reinit(cfg.ukf, SVector::zeros(), SMatrix::from_diagonal(&p0), Self::nominal_q(&cfg))?;
+        self.cfg = cfg;
+        self.nom = nom;
+        self.inc = Increments::zero();
+        self.noise_heading = cfg.heading.noise();
+        self.noise_depth = cfg.depth.noise();
+        self.noise_vel = cfg.velocity.noise();
+        self.noise_pos = cfg.position.noise();
+        let k0 = cfg.ukf.adapt.k0;
+        self.noise_heading.k = k0;
+        self.noise_depth.k = k0;
+        self.noise_vel.k = k0;
+        self.noise_pos.k = k0;
+        self.t_us = init.t_us;
+        self.last_imu_t_us = None;
+        self.last_aided_t_us = None;
+        self.nis = [0.0; 4];
+        self.imu_rejects = 0;
+        self.time_rejects = 0;
+        self.lambda = 1.0;
+        Ok(())
+    }
+
+    /// Checked nominal state and initial covariance diagonal of `init`.
+    fn initial(cfg: &NavConfig, init: &NavInit) -> Result<(NominalState, SVector<f32, N>), NavError> {
+        if (N != 15 && N != 18) || !cfg.is_valid() {
+            return Err(NavError::BadConfig);
+        }
+        let nom = NominalState {
+            att_nb: init.att_nb,
+            vel_ned_mps: init.vel_ned_mps,
+            pos_ned_m: init.pos_ned_m,
+            gyro_bias_radps: Vector3::zeros(),
+            accel_bias_mps2: Vector3::zeros(),
+            gyro_markov_radps: Vector3::zeros(),
+        };
+        if !nom.is_finite() {
+            return Err(NavError::NonFinite);
+        }
+        let mut p0 = SVector::<f32, N>::zeros();
+        let a = cfg.init_sigma_att_rad;
+        set_seg(&mut p0, ATT, &Vector3::new(a[0] * a[0], a[1] * a[1], a[2] * a[2]));
+        group_diag(&mut p0, VEL, cfg.init_sigma_vel_mps * cfg.init_sigma_vel_mps);
+        group_diag(&mut p0, POS, cfg.init_sigma_pos_m * cfg.init_sigma_pos_m);
+        group_diag(&mut p0, BG, cfg.init_sigma_gyro_bias * cfg.init_sigma_gyro_bias);
+        group_diag(&mut p0, BA, cfg.init_sigma_accel_bias * cfg.init_sigma_accel_bias);
+        if N >= MARKOV + 3 {
+            group_diag(&mut p0, MARKOV, cfg.markov_sigma * cfg.markov_sigma);
+        }
+        Ok((nom, p0))
+    }
+
+    fn with_k0(mut self, k0: u32) -> Self {
+        self.noise_heading.k = k0;
+        self.noise_depth.k = k0;
+        self.noise_vel.k = k0;
+        self.noise_pos.k = k0;
+        self
+    }
+
+    /// Process noise over one nominal covariance interval.
+    fn nominal_q(cfg: &NavConfig) -> SMatrix<f32, N, N> {
+        let t = cfg.cov_dt_s();
+        let mut d = SVector::<f32, N>::zeros();
+        group_diag(&mut d, ATT, cfg.gyro_arw * cfg.gyro_arw * t);
+        group_diag(&mut d, VEL, cfg.accel_vrw * cfg.accel_vrw * t);
+        group_diag(&mut d, POS, cfg.pos_rw * cfg.pos_rw * t);
+        group_diag(&mut d, BG, cfg.gyro_bias_rw * cfg.gyro_bias_rw * t);
+        group_diag(&mut d, BA, cfg.accel_bias_rw * cfg.accel_bias_rw * t);
+        if N >= MARKOV + 3 {
+            group_diag(&mut d, MARKOV, 2.0 * cfg.markov_sigma * cfg.markov_sigma / cfg.markov_tau_s * t);
+        }
+        SMatrix::from_diagonal(&d)
+    }
+
+    /// IMU-rate propagation: strapdown of the nominal state; a UKF predict every
+    /// `cov_decimation` samples. A non-finite or implausible sample is rejected (state
+    /// untouched); the next good sample integrates over the gap.
+    pub fn propagate(&mut self, imu: &ImuSample) -> Result<(), NavError> {
+        let g = Vector3::from(imu.gyro_radps);
+        let a = Vector3::from(imu.accel_mps2);
+        if !g.iter().chain(a.iter()).all(|v| v.is_finite()) || g.amax() > self.cfg.max_gyro_radps || a.amax() > self.cfg.max_accel_mps2 {
+            self.imu_rejects = self.imu_rejects.saturating_add(1);
+            return Err(NavError::NonFinite);
+        }
+        let Some(last) = self.last_imu_t_us else {
+            self.last_imu_t_us = Some(imu.t_us);
+            self.t_us = imu.t_us;
+            return Ok(());
+        };
+        if imu.t_us <= last {
+            self.time_rejects = self.time_rejects.saturating_add(1);
+            return Err(NavError::BadTime);
+        }
+        let dt = (imu.t_us - last) as f32 * 1e-6;
+        self.last_imu_t_us = Some(imu.t_us);
+        self.t_us = imu.t_us;
+        if dt > self.cfg.max_imu_dt_s {
+            self.time_rejects = self.time_rejects.saturating_add(1);
+            return Err(NavError::BadTime);
+        }
+        let before = self.nom;
+        let inc_before = self.inc;
+        strapdown::step(&mut self.nom, &mut self.inc, &g, &a, dt, self.cfg.gravity_mps2);
+        if !self.nom.is_finite() {
+            self.nom = before;
+            self.inc = inc_before;
+            self.imu_rejects = self.imu_rejects.saturating_add(1);
+            return Err(NavError::NonFinite);
+        }
+        if self.inc.samples >= self.cfg.cov_decimation.max(1) {
+            self.cov_predict()?;
+        }
+        Ok(())
+    }
+
+    /// Run the UKF predict now over the IMU increments accumulated since the last one (updates
+    /// do this themselves; a firmware app may call it to bound the latency of `solution()`'s
+    /// sigmas).
+    pub fn flush_covariance(&mut self) -> Result<(), NavError> {
+        self.cov_predict()
+    }
+
+    /// UKF predict over the increments accumulated since the last one.
+    pub(crate) fn cov_predict(&mut self) -> Result<(), NavError> {
+        if self.inc.samples == 0 || !(self.inc.dt_s > 0.0) {
+            return Ok(());
+        }
+        let inc = self.inc;
+        let decay = libm::expf(-inc.dt_s / self.cfg.markov_tau_s);
+        let q_scale = inc.dt_s / self.cfg.cov_dt_s();
+        self.inc = Increments::zero();
+        self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        self.inject()
+    }
+
+    /// Degraded mode without the IMU (failed or stuck): advance to `t_us` at constant velocity;
+    /// the error covariance grows by the nominal process noise plus random walks of
+    /// `attitude_rw` (rad/sqrt(s)) and `velocity_rw` (m/s/sqrt(s)) per axis, so the aiding
+    /// sensors (compass, depth, fixes) carry the state instead of being gated out against a
+    /// frozen, over-confident one. The next IMU sample continues from `t_us`.
+    pub fn coast(&mut self, t_us: u64, attitude_rw: f32, velocity_rw: f32) -> Result<(), NavError> {
+        if !(attitude_rw.is_finite() && velocity_rw.is_finite() && attitude_rw >= 0.0 && velocity_rw >= 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        self.cov_predict()?;
+        if t_us <= self.t_us {
+            return Ok(());
+        }
+        let dt = (t_us - self.t_us) as f32 * 1e-6;
+        let mut nom = self.nom;
+        nom.pos_ned_m += nom.vel_ned_mps * dt;
+        if !nom.is_finite() {
+            return Err(NavError::NonFinite);
+        }
+        let mut inc = Increments::zero();
+        inc.dt_s = dt;
+        let decay = libm::expf(-dt / self.cfg.markov_tau_s);
+        self.ukf.predict(dt / self.cfg.cov_dt_s(), |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        let mut p = *self.ukf.p();
+        for k in 0..3 {
+            if let Some(v) = p.get_mut((ATT + k, ATT + k)) {
+                *v += attitude_rw * attitude_rw * dt;
+            }
+            if let Some(v) = p.get_mut((VEL + k, VEL + k)) {
+                *v += velocity_rw * velocity_rw * dt;
+            }
+        }
+        self.ukf.set_p(p)?;
+        self.nom = nom;
+        self.t_us = t_us;
+        self.last_imu_t_us = Some(t_us);
+        self.inject()
+    }
+
+    /// Fold the error mean into the nominal state and reset it.
+    pub(crate) fn inject(&mut self) -> Result<(), NavError> {
+        let dx = *self.ukf.x();
+        let mut nom = self.nom;
+        nom.inject(&dx);
+        if !nom.is_finite() {
+            return Err(NavError::NonFinite);
+        }
+        self.nom = nom;
+        self.ukf.set_x(SVector::zeros())?;
+        Ok(())
+    }
+
+    /// Before an aiding update: finite check, flush the partial covariance interval.
+    pub(crate) fn begin_update(&mut self, values: &[f32]) -> Result<(), NavError> {
+        if !values.iter().all(|v| v.is_finite()) {
+            return Err(self.reject_nonfinite());
+        }
+        self.cov_predict()
+    }
+
+    /// After an aiding update: record, inject.
+    pub(crate) fn end_update(
+        &mut self,
+        kind: usize,
+        t_us: u64,
+        r: Result<UpdateReport<f32>, UkfError>,
+    ) -> Result<UpdateReport<f32>, NavError> {
+        let rep = r?;
+        if let Some(n) = self.nis.get_mut(kind) {
+            *n = rep.nis;
+        }
+        if rep.accepted {
+            self.lambda = rep.lambda;
+            self.last_aided_t_us = Some(t_us.max(self.t_us));
+            self.inject()?;
+        }
+        Ok(rep)
+    }
+
+    /// Count a non-finite input that never reached the UKF.
+    pub(crate) fn reject_nonfinite(&mut self) -> NavError {
+        self.imu_rejects = self.imu_rejects.saturating_add(1);
+        NavError::NonFinite
+    }
+
+    /// Replace the error covariance (symmetrized and eigenvalue-floored by the UKF), e.g. with
+    /// the correlated covariance a static alignment leaves (tilt error against accelerometer
+    /// bias). Non-finite input is refused and counted.
+    pub fn set_covariance(&mut self, p: SMatrix<f32, N, N>) -> Result<(), NavError> {
+        self.ukf.set_p(p)?;
+        Ok(())
+    }
+
+    pub fn nominal(&self) -> &NominalState {
+        &self.nom
+    }
+    pub fn covariance(&self) -> &SMatrix<f32, N, N> {
+        self.ukf.p()
+    }
+    pub fn ukf(&self) -> &Ukf<f32, N, S> {
+        &self.ukf
+    }
+    pub fn config(&self) -> &NavConfig {
+        &self.cfg
+    }
+    pub fn t_us(&self) -> u64 {
+        self.t_us
+    }
+    /// Samples rejected before reaching the UKF (non-finite or implausible IMU/aiding values).
+    pub fn input_rejects(&self) -> u32 {
+        self.imu_rejects
+    }
+    /// IMU samples with a bad time stamp (not increasing, or a gap).
+    pub fn time_rejects(&self) -> u32 {
+        self.time_rejects
+    }
+
+    pub fn mode(&self) -> NavMode {
+        match self.last_aided_t_us {
+            None => NavMode::Inertial,
+            Some(t) if (self.t_us.saturating_sub(t) as f32) * 1e-6 > self.cfg.aided_timeout_s => NavMode::Inertial,
+            Some(_) => NavMode::Aided,
+        }
+    }
+
+    /// The navigation solution as the telemetry message.
+    pub fn solution(&self) -> NavSolution {
+        let p = self.ukf.p();
+        let sd = |i: usize| libm::sqrtf(p.get((i, i)).copied().unwrap_or(0.0).max(0.0));
+        // Attitude sigmas in the heading-aligned level frame: roll ~ about forward, pitch ~ right.
+        let yaw = yaw_of(&self.nom.att_nb);
+        let (s, c) = (libm::sinf(yaw), libm::cosf(yaw));
+        let rz_t = Matrix3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
+        let patt: Matrix3<f32> = p.fixed_view::<3, 3>(ATT, ATT).into_owned();
+        let pl = rz_t * patt * rz_t.transpose();
+        let q = self.nom.att_nb;
+        NavSolution {
+            t_us: self.t_us,
+            mode: self.mode(),
+            pos_ned_m: self.nom.pos_ned_m.into(),
+            vel_ned_mps: self.nom.vel_ned_mps.into(),
+            att_nb_wxyz: [q.w, q.i, q.j, q.k],
+            sigma_pos_m: [sd(POS), sd(POS + 1), sd(POS + 2)],
+            sigma_vel_mps: [sd(VEL), sd(VEL + 1), sd(VEL + 2)],
+            sigma_att_rad: [libm::sqrtf(pl[(0, 0)].max(0.0)), libm::sqrtf(pl[(1, 1)].max(0.0)), libm::sqrtf(pl[(2, 2)].max(0.0))],
+        }
+    }
+
+    /// Current measurement noise (adapted or configured) of each aiding kind, as variances:
+    /// heading, depth, velocity (mean of the diagonal), position (mean of the diagonal).
+    pub fn r_diag(&self) -> [f32; 4] {
+        [self.noise_heading.r[(0, 0)], self.noise_depth.r[(0, 0)], self.noise_vel.r.trace() / 3.0, self.noise_pos.r.trace() / 3.0]
+    }
+
+    /// Latest fading factor applied by an accepted update.
+    pub fn lambda(&self) -> f32 {
+        self.lambda
+    }
+
+    /// Latest NIS per kind (heading, depth, velocity, position).
+    pub fn nis(&self) -> [f32; 4] {
+        self.nis
+    }
+}

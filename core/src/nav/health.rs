@@ -1,0 +1,34 @@
+//! Filter health as the `FilterHealth` telemetry message.
+
+use subnav_wire::messages::FilterHealth;
+
+use super::filter::NavFilter;
+use super::state::{ATT, BA, BG, POS, VEL};
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// Health for telemetry. Notes on the fields:
+    /// - `q_diag`: mean of each group's diagonal of the (adapted) process noise, per second
+    ///   (the per-interval Q divided by the nominal covariance interval).
+    /// - `pd_repairs`: eigenvalue repairs of P plus Sage-Husa Q/R candidates that lost positive
+    ///   definiteness and were replaced by the biased form (the message has one counter; see
+    ///   [`crate::ukf::UkfHealth`] for them apart).
+    /// - `nonfinite_rejects`: inputs rejected before the UKF plus those the UKF rejected.
+    /// - `cpu_load_permille` is left 0: the firmware fills it.
+    pub fn health(&self) -> FilterHealth {
+        let h = self.ukf.health();
+        let q = self.ukf.q();
+        let t = self.cfg.cov_dt_s();
+        let g = |s: usize| (0..3).map(|k| q.get((s + k, s + k)).copied().unwrap_or(0.0)).sum::<f32>() / (3.0 * t);
+        FilterHealth {
+            t_us: self.t_us,
+            nis: self.nis,
+            lambda: self.lambda,
+            q_diag: [g(ATT), g(VEL), g(POS), g(BG), g(BA)],
+            r_diag: self.r_diag(),
+            pd_repairs: h.pd_repairs.saturating_add(h.adapt_fallbacks),
+            gate_rejects: h.gate_rejects,
+            nonfinite_rejects: h.nonfinite_rejects.saturating_add(self.imu_rejects),
+            cpu_load_permille: 0,
+        }
+    }
+}

@@ -1,0 +1,383 @@
+//! `subnav compass`: run the polarization compass (`subnav_core::compass`, the firmware's code)
+//! on a simulated sky (heading Monte Carlo, sun-track geolocation) or on a CSV of raw counts.
+//!
+//! CSV (`--csv FILE`): a header line, then one solve per row:
+//! `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,u0_c1,u0_c2,u0_c3,u1_c0,...`
+//! `time` is POSIX microseconds or RFC 3339; empty lat/lon mean "position unknown" (the sun is
+//! still measured, the reason is `NoTime`). The units are the default head of the simulator
+//! (`host::compass::sim::default_units`: a ring of N = (columns - 6) / 4 units, nominal
+//! calibration). `--simulate --emit-csv FILE` writes such a file (with a `true_yaw_deg` column).
+
+use std::io::Write;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use nalgebra::Rotation3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::json;
+use subnav_core::compass::{self, CHANNELS, CompassInput};
+use subnav_core::ephemeris::{self, Observer};
+
+use super::Format;
+use subnav_base::sky as sim;
+use subnav_compass::{geoloc, montecarlo};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Heading Monte Carlo on the simulator.
+    #[arg(long, conflicts_with_all = ["csv", "geolocate"])]
+    pub simulate: bool,
+    /// Sun-track geolocation trials on the simulator.
+    #[arg(long, conflicts_with = "csv")]
+    pub geolocate: bool,
+    /// CSV of raw channel counts to run through the compass.
+    #[arg(long)]
+    pub csv: Option<std::path::PathBuf>,
+    /// Monte Carlo draws (--simulate).
+    #[arg(long, default_value_t = 1000)]
+    pub draws: usize,
+    /// Geolocation trials (--geolocate), each a simulated track.
+    #[arg(long, default_value_t = 50)]
+    pub trials: usize,
+    /// Track length (s) and sample interval (s) for --geolocate.
+    #[arg(long, default_value_t = 3600)]
+    pub track_s: i64,
+    #[arg(long, default_value_t = 60)]
+    pub interval_s: i64,
+    /// Heading knowledge 1-sigma (deg) used by --geolocate to turn relative azimuths into azimuths.
+    #[arg(long, default_value_t = 0.5)]
+    pub heading_sigma_deg: f64,
+    /// With --geolocate: trust the heading (do not fit a constant azimuth offset).
+    #[arg(long)]
+    pub known_heading: bool,
+    /// Sensor depth (m).
+    #[arg(long, default_value_t = 10.0)]
+    pub depth_m: f64,
+    /// Sun apparent elevation band (deg) for --simulate.
+    #[arg(long, default_value_t = 20.0)]
+    pub min_elevation_deg: f64,
+    #[arg(long, default_value_t = 70.0)]
+    pub max_elevation_deg: f64,
+    /// Polarization units in the simulated head.
+    #[arg(long, default_value_t = 8)]
+    pub units: usize,
+    /// Gravity-vector tilt error, 1-sigma per axis (deg).
+    #[arg(long, default_value_t = 0.01)]
+    pub tilt_sigma_deg: f64,
+    /// RMS surface slope for a wavy surface (0 = flat; 16 facets per draw when > 0).
+    #[arg(long, default_value_t = 0.0)]
+    pub slope_rms: f64,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// With --simulate: also write the simulated raw counts as a CSV usable with --csv.
+    #[arg(long, requires = "simulate")]
+    pub emit_csv: Option<std::path::PathBuf>,
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    if args.units < 3 || args.units > compass::MAX_UNITS {
+        bail!("--units must be within 3..={}", compass::MAX_UNITS);
+    }
+    if args.simulate {
+        simulate(&args, format)
+    } else if args.geolocate {
+        geolocate(&args, format)
+    } else if let Some(path) = &args.csv {
+        from_csv(path, format)
+    } else {
+        bail!("give one of --simulate, --geolocate or --csv FILE")
+    }
+}
+
+fn water(args: &Args) -> sim::Water {
+    let flat = sim::Water::clear();
+    if args.slope_rms > 0.0 { sim::Water { slope_rms: args.slope_rms, facets: 16, ..flat } } else { flat }
+}
+
+fn simulate(args: &Args, format: Format) -> Result<ExitCode> {
+    let cfg = montecarlo::McConfig {
+        draws: args.draws,
+        depth_m: args.depth_m,
+        min_elevation_deg: args.min_elevation_deg,
+        max_elevation_deg: args.max_elevation_deg,
+        units: args.units,
+        tilt_sigma_rad: args.tilt_sigma_deg.to_radians(),
+        water: water(args),
+        seed: args.seed,
+        ..montecarlo::McConfig::default()
+    };
+    if let Some(path) = &args.emit_csv {
+        emit_csv(&cfg, path)?;
+    }
+    let r = montecarlo::run(&cfg);
+    match format {
+        Format::Json => println!("{}", serde_json::to_string(&r)?),
+        Format::Text => {
+            println!(
+                "heading Monte Carlo: {} draws at {} m, sun {}-{} deg: {} fixes, RMSE {:.4} deg, mean {:+.4} deg, p95 |err| {:.4} deg, max {:.4} deg",
+                r.draws,
+                r.depth_m,
+                r.elevation_deg[0],
+                r.elevation_deg[1],
+                r.fixes,
+                r.rmse_deg,
+                r.mean_error_deg,
+                r.p95_abs_error_deg,
+                r.max_abs_error_deg
+            );
+            println!(
+                "reported 1-sigma (RMS) {:.4} deg, {:.1}% of errors within 2 sigma, mean unit DoLP {:.3}",
+                r.rms_reported_sigma_deg,
+                100.0 * r.within_2_sigma,
+                r.mean_dolp
+            );
+            for b in &r.bins {
+                println!(
+                    "  sun {:>5.1}-{:>5.1} deg: {:>5} fixes, RMSE {:.4} deg",
+                    b.elevation_deg[0], b.elevation_deg[1], b.fixes, b.rmse_deg
+                );
+            }
+            for (k, v) in &r.no_fix {
+                println!("  no fix {k}: {v}");
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn geolocate(args: &Args, format: Format) -> Result<ExitCode> {
+    let cfg = geoloc::GeoConfig {
+        trials: args.trials,
+        duration_s: args.track_s,
+        interval_s: args.interval_s.max(1),
+        depth_m: args.depth_m,
+        units: args.units,
+        tilt_sigma_rad: args.tilt_sigma_deg.to_radians(),
+        heading_sigma_rad: args.heading_sigma_deg.to_radians(),
+        fit_azimuth_offset: !args.known_heading,
+        water: water(args),
+        seed: args.seed,
+        ..geoloc::GeoConfig::default()
+    };
+    let r = geoloc::run(&cfg);
+    match format {
+        Format::Json => println!("{}", serde_json::to_string(&r)?),
+        Format::Text => println!(
+            "sun geolocation: {} trials of {} s tracks ({:.1} fixes each), heading 1-sigma {} deg {}, {} fitted: mean error {:.2} km, median {:.2} km, max {:.2} km",
+            r.trials,
+            r.duration_s,
+            r.samples_per_trial,
+            r.heading_sigma_deg,
+            if r.fit_azimuth_offset { "(offset fitted)" } else { "(taken as known)" },
+            r.fitted,
+            r.mean_error_km,
+            r.median_error_km,
+            r.max_error_km
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Writes simulated draws as a raw-counts CSV (same draws as the Monte Carlo would make with
+/// another seed stream; the `true_yaw_deg` column is the truth).
+fn emit_csv(cfg: &montecarlo::McConfig, path: &std::path::Path) -> Result<()> {
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xC5F);
+    let units = sim::default_units(cfg.units);
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).with_context(|| format!("create {}", path.display()))?);
+    let mut header = String::from("time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2");
+    for u in 0..units.len() {
+        for c in 0..CHANNELS {
+            header += &format!(",u{u}_c{c}");
+        }
+    }
+    writeln!(f, "{header},true_yaw_deg")?;
+    for _ in 0..cfg.draws {
+        let (t, obs, p) = montecarlo::draw_sun(&mut rng, cfg.min_elevation_deg, cfg.max_elevation_deg);
+        let field = sim::Field::new(montecarlo::sun_ned(&p), cfg.water, cfg.depth_m, &mut rng);
+        let mt = cfg.max_tilt_deg.to_radians();
+        let (roll, pitch, yaw) = (rng.random_range(-mt..=mt), rng.random_range(-mt..=mt), rng.random_range(0.0..std::f64::consts::TAU));
+        let r_nb = Rotation3::from_euler_angles(roll, pitch, yaw);
+        let cal: Vec<_> = units.iter().map(|u| sim::true_channels(u, &cfg.errors, &mut rng)).collect();
+        let counts = sim::counts(&field, &r_nb, &units, &cal, &cfg.errors, &mut rng);
+        let a = sim::accel(&r_nb, cfg.tilt_sigma_rad, &mut rng);
+        let mut row = format!(
+            "{t},{:.7},{:.7},{:.6},{:.6},{:.6}",
+            (obs.lat_rad as f64).to_degrees(),
+            (obs.lon_rad as f64).to_degrees(),
+            a[0],
+            a[1],
+            a[2]
+        );
+        for c in counts.iter().flatten() {
+            row += &format!(",{c}");
+        }
+        writeln!(f, "{row},{:.6}", yaw.to_degrees())?;
+    }
+    Ok(())
+}
+
+/// One parsed CSV row.
+struct Row {
+    t: Option<i64>,
+    obs: Option<Observer>,
+    accel: [f32; 3],
+    counts: Vec<[i16; CHANNELS]>,
+}
+
+fn parse_row(line: &str, n_units: usize) -> Result<Row> {
+    let f: Vec<&str> = line.split(',').map(str::trim).collect();
+    if f.len() < 6 + 4 * n_units {
+        bail!("expected at least {} columns, found {}", 6 + 4 * n_units, f.len());
+    }
+    let t = if f[0].is_empty() {
+        None
+    } else if let Ok(us) = f[0].parse::<i64>() {
+        Some(us)
+    } else {
+        Some(super::sun::parse_time_us(f[0])?)
+    };
+    let num = |s: &str, what: &str| -> Result<f64> {
+        let v: f64 = s.parse().with_context(|| format!("{what}: not a number: {s:?}"))?;
+        if !v.is_finite() {
+            bail!("{what}: not finite");
+        }
+        Ok(v)
+    };
+    let obs = if f[1].is_empty() || f[2].is_empty() {
+        None
+    } else {
+        Some(Observer {
+            lat_rad: num(f[1], "lat_deg")?.to_radians() as f32,
+            lon_rad: num(f[2], "lon_deg")?.to_radians() as f32,
+            height_m: 0.0,
+        })
+    };
+    let accel = [num(f[3], "ax")? as f32, num(f[4], "ay")? as f32, num(f[5], "az")? as f32];
+    let mut counts = Vec::with_capacity(n_units);
+    for u in 0..n_units {
+        let mut c = [0i16; CHANNELS];
+        for (k, x) in c.iter_mut().enumerate() {
+            let s = f[6 + 4 * u + k];
+            *x = s.parse().with_context(|| format!("unit {u} channel {k}: not a 16-bit count: {s:?}"))?;
+        }
+        counts.push(c);
+    }
+    Ok(Row { t, obs, accel, counts })
+}
+
+fn from_csv(path: &std::path::Path, format: Format) -> Result<ExitCode> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("read {}", path.display()))?;
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().context("empty CSV")?;
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let n_count_cols = cols.iter().filter(|c| c.starts_with('u') && c.contains("_c")).count();
+    if n_count_cols % CHANNELS != 0 || n_count_cols / CHANNELS < 3 {
+        bail!("header must have 4 count columns per unit (u0_c0..u0_c3, ...) for at least 3 units, found {n_count_cols}");
+    }
+    let n_units = n_count_cols / CHANNELS;
+    if n_units > compass::MAX_UNITS {
+        bail!("at most {} units", compass::MAX_UNITS);
+    }
+    let truth_col = cols.iter().position(|c| *c == "true_yaw_deg");
+    let units = sim::default_units(n_units);
+    let cfg = montecarlo::compass_config(&sim::Water::clear(), 0.01f64.to_radians());
+    let (mut fixes, mut rows, mut bad) = (0usize, 0usize, 0usize);
+    let mut sq = 0.0;
+    for (i, line) in lines {
+        rows += 1;
+        let row = match parse_row(line, n_units) {
+            Ok(r) => r,
+            Err(e) => {
+                // Bad rows are reported and skipped; the others still run.
+                bad += 1;
+                eprintln!("line {}: {e:#}", i + 1);
+                continue;
+            }
+        };
+        let dt = row.t.map_or(69.0, ephemeris::delta_t_estimate_s);
+        let input = CompassInput { counts: &row.counts, accel_body_mps2: row.accel, unix_us: row.t, observer: row.obs, delta_t_s: dt };
+        let res = compass::solve(&units, &input, &cfg);
+        let truth = truth_col.and_then(|c| line.split(',').nth(c)).and_then(|s| s.trim().parse::<f64>().ok());
+        match (&res, format) {
+            (Ok(fx), Format::Text) => {
+                let h = (fx.heading_rad as f64).to_degrees();
+                let err = truth.map(|t| montecarlo::wrap_pi((h - t).to_radians()).to_degrees());
+                println!(
+                    "line {}: heading {:.3} deg +- {:.3} (1-sigma), sun rel. azimuth {:.3} deg, elevation {:.3} deg in water / {:.3} deg in air, {} units{}",
+                    i + 1,
+                    h,
+                    (fx.sigma_heading_rad as f64).to_degrees(),
+                    (fx.sun.rel_azimuth_rad as f64).to_degrees(),
+                    (fx.sun.water_elevation_rad as f64).to_degrees(),
+                    (fx.sun.air_elevation_rad as f64).to_degrees(),
+                    fx.sun.sun.units_used,
+                    err.map(|e| format!(", error {e:+.3} deg")).unwrap_or_default()
+                );
+            }
+            (Ok(fx), Format::Json) => println!(
+                "{}",
+                json!({"line": i + 1, "heading_deg": (fx.heading_rad as f64).to_degrees(), "sigma_deg": (fx.sigma_heading_rad as f64).to_degrees(),
+                       "rel_azimuth_deg": (fx.sun.rel_azimuth_rad as f64).to_degrees(), "water_elevation_deg": (fx.sun.water_elevation_rad as f64).to_degrees(),
+                       "air_elevation_deg": (fx.sun.air_elevation_rad as f64).to_degrees(), "units_used": fx.sun.sun.units_used, "no_fix_reason": 0,
+                       "true_yaw_deg": truth})
+            ),
+            (Err((r, _)), Format::Text) => println!("line {}: no fix ({}: {})", i + 1, r.code(), r.describe()),
+            (Err((r, m)), Format::Json) => println!(
+                "{}",
+                json!({"line": i + 1, "no_fix_reason": r.code(), "no_fix": format!("{r:?}"),
+                       "rel_azimuth_deg": m.map(|m| (m.rel_azimuth_rad as f64).to_degrees()),
+                       "water_elevation_deg": m.map(|m| (m.water_elevation_rad as f64).to_degrees())})
+            ),
+        }
+        if let Ok(fx) = &res {
+            fixes += 1;
+            if let Some(t) = truth {
+                sq += montecarlo::wrap_pi(fx.heading_rad as f64 - t.to_radians()).powi(2);
+            }
+        }
+    }
+    if format == Format::Text {
+        let rmse = if truth_col.is_some() && fixes > 0 {
+            format!(", heading RMSE vs true_yaw_deg {:.4} deg", (sq / fixes as f64).sqrt().to_degrees())
+        } else {
+            String::new()
+        };
+        println!("{rows} rows, {fixes} fixes, {bad} unreadable{rmse}");
+    }
+    Ok(if bad > 0 { ExitCode::from(2) } else { ExitCode::SUCCESS })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_round_trip_and_bad_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sim.csv");
+        let cfg = montecarlo::McConfig { draws: 5, seed: 4, ..montecarlo::McConfig::default() };
+        emit_csv(&cfg, &path).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut lines = text.lines();
+        let header = lines.next().unwrap();
+        assert!(header.starts_with("time,lat_deg,lon_deg,ax_mps2"));
+        let units = sim::default_units(8);
+        let ccfg = montecarlo::compass_config(&sim::Water::clear(), 0.01f64.to_radians());
+        for line in lines {
+            let row = parse_row(line, 8).unwrap();
+            let truth: f64 = line.rsplit(',').next().unwrap().parse().unwrap();
+            let input =
+                CompassInput { counts: &row.counts, accel_body_mps2: row.accel, unix_us: row.t, observer: row.obs, delta_t_s: 70.0 };
+            let fx = compass::solve(&units, &input, &ccfg).unwrap();
+            let err = montecarlo::wrap_pi((fx.heading_rad as f64) - truth.to_radians()).to_degrees();
+            assert!(err.abs() < 1.0, "{err}");
+        }
+        assert!(parse_row("1,2,3", 8).is_err());
+        let bad_count = format!("0,10,10,0,0,-9.8{}", ",70000".repeat(32));
+        assert!(parse_row(&bad_count, 8).is_err());
+        let nan = format!("0,10,10,NaN,0,-9.8{}", ",100".repeat(32));
+        assert!(parse_row(&nan, 8).is_err());
+    }
+}

@@ -1,0 +1,96 @@
+//! `subnav export`: a recording -> MCAP (open it in Foxglove) and/or one CSV per message kind.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use serde_json::json;
+
+use super::Format;
+use subnav_link::defmt_log::DefmtTable;
+use subnav_link::export::{self, TimeBase};
+use subnav_link::record::session::Session;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The recording (from `subnav record` or `subnav qemu --record`).
+    pub recording: PathBuf,
+    /// Write an MCAP file here.
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
+    /// Write one CSV per message kind into this directory.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Firmware ELF to decode the defmt log stream (default: the ELF named in the recording).
+    #[arg(long)]
+    pub elf: Option<PathBuf>,
+    /// Clock for message times.
+    #[arg(long, value_enum, default_value_t = TimeBase::Host)]
+    pub time: TimeBase,
+}
+
+/// Decode a recording, with the defmt table of `elf` (or the recording's ELF, when it exists).
+pub fn load_session(recording: &std::path::Path, elf: Option<&std::path::Path>) -> Result<(Session, Option<String>)> {
+    let loaded = subnav_link::record::read_file(recording)?;
+    let elf_path = elf.map(|p| p.to_path_buf()).or_else(|| loaded.meta.elf.as_ref().map(PathBuf::from));
+    let mut note = None;
+    let table = match &elf_path {
+        Some(p) if p.exists() => Some(DefmtTable::from_elf_path(p)?),
+        Some(p) => {
+            note = Some(format!("defmt logs not decoded: the firmware ELF {} is not there (give it with --elf)", p.display()));
+            None
+        }
+        None => None,
+    };
+    let s = Session::decode(&loaded, table.as_ref());
+    if s.defmt_bytes > 0 && table.is_none() && note.is_none() {
+        note = Some(format!("{} defmt bytes not decoded: give the firmware ELF with --elf", s.defmt_bytes));
+    }
+    Ok((s, note))
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    if args.mcap.is_none() && args.csv.is_none() {
+        bail!("say what to write: --mcap FILE.mcap and/or --csv DIRECTORY");
+    }
+    let (session, note) = load_session(&args.recording, args.elf.as_deref())?;
+    if let Some(n) = &note {
+        eprintln!("note: {n}");
+    }
+    let mut result = json!({"recording": args.recording.display().to_string(), "messages": session.messages.len(), "corrupt_frames": session.corrupt.len(), "log_lines": session.logs.len(), "damaged_regions": session.damage.len()});
+    if let Some(path) = &args.mcap {
+        let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        let bar = super::record::progress_bar(0, "writing MCAP");
+        let summary = export::mcap::write(&session, std::io::BufWriter::new(f), args.time, |done, total| {
+            bar.set_length(total);
+            bar.set_position(done);
+        })?;
+        bar.finish_and_clear();
+        match format {
+            Format::Text => {
+                println!("{}: {} messages", path.display(), summary.messages);
+                for (t, n) in &summary.topics {
+                    println!("  {t:<28} {n}");
+                }
+            }
+            Format::Json => result["mcap"] = json!({"path": path.display().to_string(), "summary": summary}),
+        }
+    }
+    if let Some(dir) = &args.csv {
+        let files = export::csv::write(&session, dir)?;
+        match format {
+            Format::Text => {
+                for (p, n) in &files {
+                    println!("{}: {n} rows", p.display());
+                }
+            }
+            Format::Json => {
+                result["csv"] = json!(files.iter().map(|(p, n)| json!({"path": p.display().to_string(), "rows": n})).collect::<Vec<_>>())
+            }
+        }
+    }
+    if format == Format::Json {
+        println!("{result}");
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,95 @@
+//! Printing decoded telemetry and logs as human text or JSON lines (shared by `decode`, `qemu`).
+
+use serde_json::json;
+use subnav_wire::{RawSample, Uplink};
+
+use super::Format;
+use subnav_link::defmt_log::LogLine;
+use subnav_link::uplink::{LinkEvent, LinkStats, describe};
+
+fn secs(t_us: u64) -> String {
+    format!("{:>10.6}", t_us as f64 * 1e-6)
+}
+
+fn v3(v: &[f32; 3]) -> String {
+    format!("[{:.3}, {:.3}, {:.3}]", v[0], v[1], v[2])
+}
+
+/// One line of human-readable text for a message.
+pub fn text(m: &Uplink) -> String {
+    match m {
+        Uplink::Boot(b) => format!(
+            "boot    t={} board={:?} firmware={}.{}.{} protocol={} schema={:#018x}",
+            secs(b.t_us),
+            b.board,
+            b.firmware_version[0],
+            b.firmware_version[1],
+            b.firmware_version[2],
+            b.protocol_version,
+            b.schema_fingerprint
+        ),
+        Uplink::Nav(n) => format!(
+            "nav     t={} mode={:?} pos_ned_m={} vel_ned_mps={} sigma_pos_m={}",
+            secs(n.t_us),
+            n.mode,
+            v3(&n.pos_ned_m),
+            v3(&n.vel_ned_mps),
+            v3(&n.sigma_pos_m)
+        ),
+        Uplink::Raw(RawSample::Imu(s)) => {
+            format!("imu     t={} gyro_radps={} accel_mps2={}", secs(s.t_us), v3(&s.gyro_radps), v3(&s.accel_mps2))
+        }
+        Uplink::Raw(RawSample::Polarization(s)) => format!("polar   t={} unit={} counts={:?}", secs(s.t_us), s.unit, s.counts),
+        Uplink::Raw(RawSample::Depth(s)) => {
+            format!("depth   t={} pressure_pa={:.1} depth_m={:.3} temp_c={:.2}", secs(s.t_us), s.pressure_pa, s.depth_m, s.temp_c)
+        }
+        Uplink::Compass(c) => format!(
+            "compass t={} heading_deg={} sigma_deg={:.3} units={} no_fix_reason={}",
+            secs(c.t_us),
+            c.heading_rad.map(|h| format!("{:.3}", h.to_degrees())).unwrap_or_else(|| "none".into()),
+            c.sigma_heading_rad.to_degrees(),
+            c.units_used,
+            c.no_fix_reason
+        ),
+        Uplink::Health(h) => format!(
+            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} gate_rejects={} nonfinite={}",
+            secs(h.t_us),
+            h.cpu_load_permille as f32 / 10.0,
+            h.lambda,
+            h.nis,
+            h.pd_repairs,
+            h.gate_rejects,
+            h.nonfinite_rejects
+        ),
+        Uplink::Fault(f) => format!("FAULT   t={} source={:?} kind={:?} count={}", secs(f.t_us), f.source, f.kind, f.count),
+        Uplink::Ack(a) => format!("ack     seq={} result={:?}", a.seq, a.result),
+    }
+}
+
+pub fn event(e: &LinkEvent, format: Format) {
+    match (e, format) {
+        (LinkEvent::Message(m), Format::Text) => println!("{}", text(m)),
+        (LinkEvent::Message(m), Format::Json) => println!("{}", json!({"type": "message", "kind": m.kind(), "msg": m})),
+        (LinkEvent::Corrupt(err), Format::Text) => println!("corrupt frame: {err}"),
+        (LinkEvent::Corrupt(err), Format::Json) => println!("{}", json!({"type": "corrupt", "error": err.to_string()})),
+        (LinkEvent::Incompatible(c), Format::Text) => eprintln!("warning: {}", describe(c)),
+        (LinkEvent::Incompatible(c), Format::Json) => println!("{}", json!({"type": "incompatible", "detail": describe(c)})),
+    }
+}
+
+pub fn log(l: &LogLine, format: Format) {
+    match format {
+        Format::Text => println!("log     {l}"),
+        Format::Json => println!("{}", json!({"type": "log", "level": l.level, "timestamp": l.timestamp, "message": l.message})),
+    }
+}
+
+pub fn summary(stats: &LinkStats, trailing: usize, format: Format) {
+    match format {
+        Format::Text => eprintln!(
+            "summary: {} bytes, {} frames decoded, {} corrupt, {} boot(s), {} incompatible, {} trailing bytes of an unfinished frame",
+            stats.bytes, stats.frames_ok, stats.frames_bad, stats.boots, stats.incompatible_boots, trailing
+        ),
+        Format::Json => println!("{}", json!({"type": "summary", "stats": stats, "trailing_bytes": trailing})),
+    }
+}

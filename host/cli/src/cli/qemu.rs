@@ -1,0 +1,82 @@
+//! `subnav qemu`: boot a firmware ELF in QEMU (mps2-an386), print its decoded telemetry and
+//! defmt logs live, and exit with the firmware's exit status.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Result;
+
+use super::{Format, print};
+use subnav_link::qemu::{self, QemuConfig, QemuEvent};
+use subnav_link::record::tap::QemuRecorder;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The QEMU board firmware ELF (`cargo xtask build --board qemu` prints where it is).
+    #[arg(long)]
+    pub elf: PathBuf,
+    /// Firmware time to run before the board exits, ms (0 = until the firmware stops itself).
+    #[arg(long, default_value_t = 5_000)]
+    pub run_ms: u64,
+    /// Wall-clock limit, seconds.
+    #[arg(long, default_value_t = 120)]
+    pub timeout_s: u64,
+    /// Write a lossless recording (uplink, defmt and downlink bytes with host receive times) to
+    /// this file; `subnav decode --file`, `export` and `report` read it.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// QEMU executable.
+    #[arg(long, default_value = "qemu-system-arm")]
+    pub qemu: PathBuf,
+    /// QEMU -icount shift (virtual ns per instruction = 2^shift).
+    #[arg(long, default_value_t = 3)]
+    pub icount_shift: u8,
+    /// Run without the simulated sensors (every bus transaction is NACKed).
+    #[arg(long)]
+    pub no_sensors: bool,
+    /// Seed of the simulated dive (default scenario: survey at 10 m, Bay of Biscay, June morning).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let mut cfg = QemuConfig::new(&args.elf);
+    cfg.qemu = args.qemu;
+    cfg.run_ms = (args.run_ms > 0).then_some(args.run_ms);
+    cfg.timeout = Duration::from_secs(args.timeout_s);
+    cfg.icount_shift = args.icount_shift;
+    let recorder = args.record.as_ref().map(|p| QemuRecorder::start(&mut cfg, p)).transpose()?;
+    let scenario = subnav_sil::Scenario { seed: args.seed, duration_s: (args.run_ms as f64 / 1000.0).max(1.0), ..Default::default() };
+    let bus: Box<dyn qemu::BusHandler> = if args.no_sensors {
+        Box::new(qemu::NothingAttached)
+    } else {
+        cfg.board_args = scenario.board_args();
+        Box::new(subnav_sil::SimHead::new(&scenario))
+    };
+    let outcome = qemu::run_with_bus(&cfg, bus, |event, _| match event {
+        QemuEvent::Link(e) => print::event(&e, format),
+        QemuEvent::Log(l) => print::log(&l, format),
+    })
+    .map(|(o, _)| o);
+    cfg.raw_tap = None;
+    if let Some(r) = recorder {
+        r.finish()?;
+    }
+    let outcome = outcome?;
+    print::summary(&outcome.link, 0, format);
+    if !outcome.stderr.trim().is_empty() {
+        eprintln!("qemu: {}", outcome.stderr.trim());
+    }
+    if outcome.timed_out {
+        eprintln!("error: the firmware did not exit within {} s; QEMU was stopped", args.timeout_s);
+        return Ok(ExitCode::FAILURE);
+    }
+    match outcome.exit_code {
+        Some(0) => Ok(ExitCode::SUCCESS),
+        code => {
+            eprintln!("error: the firmware exited with failure (QEMU exit code {code:?})");
+            Ok(ExitCode::FAILURE)
+        }
+    }
+}

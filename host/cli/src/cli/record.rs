@@ -1,0 +1,166 @@
+//! `subnav record`: read telemetry live (TCP, e.g. QEMU's `-serial tcp::4444,server=on`; a
+//! serial port; or, built with `--features probe`, the RTT up-channels of a board through a
+//! debug probe) into a lossless recording, with a live one-line status: data rate, frames,
+//! corrupt frames, telemetry the firmware reported dropped, and the latest fix.
+//!
+//! Every chunk is written to the file as it arrives (unbuffered), so stopping with Ctrl-C or
+//! losing power loses nothing already received.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use serde_json::json;
+use subnav_wire::{FaultKind, NavMode, Uplink};
+
+use super::Format;
+use subnav_link::record::{Meta, Stream, Writer};
+use subnav_link::source::{Source, pump};
+use subnav_link::uplink::{LinkEvent, LinkStats, UplinkDecoder};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Output recording (e.g. dive.snrec).
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// A TCP address to connect to, e.g. QEMU started with `-serial tcp::4444,server=on`.
+    #[arg(long, conflicts_with_all = ["serial", "chip"])]
+    pub tcp: Option<String>,
+    /// A serial port, e.g. /dev/ttyUSB0.
+    #[arg(long, conflicts_with = "chip")]
+    pub serial: Option<String>,
+    /// Serial baud rate (the STM32 board uses 460800).
+    #[arg(long, default_value_t = 460_800)]
+    pub baud: u32,
+    /// Record RTT through a debug probe from this chip (e.g. STM32F405RGTx); needs a build with
+    /// `--features probe` and `--elf`.
+    #[arg(long)]
+    pub chip: Option<String>,
+    /// The firmware ELF: named in the recording so that its defmt stream can be decoded later
+    /// (and needed to find the RTT control block with --chip).
+    #[arg(long)]
+    pub elf: Option<PathBuf>,
+    /// Stop after this many seconds (default: until the source closes or Ctrl-C).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+}
+
+/// A progress bar on stderr (hidden when stderr is not a terminal): `len` 0 = spinner.
+pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    let bar = if len == 0 { ProgressBar::new_spinner() } else { ProgressBar::new(len) };
+    let style = if len == 0 {
+        ProgressStyle::with_template("{spinner} {prefix} {msg} [{elapsed}]")
+    } else {
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} [{elapsed}]")
+    };
+    if let Ok(s) = style {
+        bar.set_style(s.progress_chars("=> "));
+    }
+    bar.set_prefix(what.to_string());
+    bar.enable_steady_tick(Duration::from_millis(200));
+    bar
+}
+
+/// What a live recording has seen so far (the status line and the final summary).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LiveStatus {
+    pub seconds: f64,
+    pub link: LinkStats,
+    /// Telemetry messages the firmware reported it could not send (Fault TelemetryDropped).
+    pub dropped_by_firmware: u64,
+    pub defmt_bytes: u64,
+    pub latest_fix: Option<(u64, [f32; 3], String)>,
+}
+
+impl LiveStatus {
+    pub fn see(&mut self, e: &LinkEvent) {
+        if let LinkEvent::Message(m) = e {
+            match m {
+                Uplink::Nav(n) if n.mode != NavMode::Uninitialised => {
+                    self.latest_fix = Some((n.t_us, n.pos_ned_m, format!("{:?}", n.mode)))
+                }
+                Uplink::Fault(f) if f.kind == FaultKind::TelemetryDropped => self.dropped_by_firmware = u64::from(f.count),
+                _ => {}
+            }
+        }
+    }
+
+    pub fn line(&self) -> String {
+        let rate = if self.seconds > 0.0 { self.link.bytes as f64 / self.seconds } else { 0.0 };
+        let fix = match &self.latest_fix {
+            Some((t, p, mode)) => format!("fix t={:.1}s N {:.1} E {:.1} D {:.1} ({mode})", *t as f64 * 1e-6, p[0], p[1], p[2]),
+            None => "no fix yet".into(),
+        };
+        format!(
+            "{:.0} B/s, {} frames, {} corrupt, {} dropped by firmware, {}",
+            rate, self.link.frames_ok, self.link.frames_bad, self.dropped_by_firmware, fix
+        )
+    }
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    if let Some(chip) = &args.chip {
+        return record_rtt(&args, chip, format);
+    }
+    let source = match (&args.tcp, &args.serial) {
+        (Some(t), _) => Source::Tcp(t.clone()),
+        (_, Some(s)) => Source::Serial { path: s.clone(), baud: args.baud },
+        _ => bail!(
+            "say where the telemetry comes from: --tcp HOST:PORT, --serial DEVICE [--baud N], or --chip CHIP --elf ELF (probe builds)"
+        ),
+    };
+    let mut meta = Meta::new(source.to_string());
+    meta.elf = args.elf.as_ref().map(|p| p.display().to_string());
+    let mut reader = source.open()?;
+    let mut w = Writer::create(&args.out, &meta)?;
+    let bar = progress_bar(0, "recording");
+    let started = Instant::now();
+    let mut dec = UplinkDecoder::new();
+    let mut status = LiveStatus::default();
+    let mut write_err = None;
+    let limit = args.duration_s.map(Duration::from_secs_f64);
+    let result = pump(reader.as_mut(), |bytes| {
+        if let Err(e) = w.chunk_now(Stream::Uplink, bytes) {
+            write_err = Some(e);
+            return false;
+        }
+        dec.feed(bytes, |e| status.see(&e));
+        status.link = dec.stats();
+        status.seconds = started.elapsed().as_secs_f64();
+        bar.set_message(status.line());
+        limit.is_none_or(|l| started.elapsed() < l)
+    });
+    bar.finish_and_clear();
+    if let Some(e) = write_err {
+        return Err(e);
+    }
+    status.seconds = started.elapsed().as_secs_f64();
+    finish(&args, &status, format);
+    result?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn finish(args: &Args, status: &LiveStatus, format: Format) {
+    match format {
+        Format::Text => eprintln!("recorded {} in {:.1} s: {}", args.out.display(), status.seconds, status.line()),
+        Format::Json => println!("{}", json!({"type": "summary", "recording": args.out.display().to_string(), "status": status})),
+    }
+}
+
+#[cfg(feature = "probe")]
+fn record_rtt(args: &Args, chip: &str, format: Format) -> Result<ExitCode> {
+    let Some(elf) = &args.elf else { bail!("--chip needs --elf (the RTT control block is found through the ELF's symbols)") };
+    let status = super::attach::stream_rtt(chip, elf, None, Some(&args.out), args.duration_s, |_| {})?;
+    finish(args, &status, format);
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(not(feature = "probe"))]
+fn record_rtt(_args: &Args, _chip: &str, _format: Format) -> Result<ExitCode> {
+    bail!(
+        "this subnav was built without debug-probe support: rebuild with `cargo build -p subnav-host --features probe` to record RTT with --chip"
+    )
+}

@@ -1,0 +1,104 @@
+//! `subnav report`: a recording (+ truth, when the dive was simulated) -> figures and a
+//! Markdown/HTML page with error statistics.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use serde_json::json;
+
+use super::Format;
+use subnav_link::record::session::parse_truth_csv;
+use subnav_report::{self as report, ImageFormat, ReportData};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The recording (from `subnav record` or `subnav qemu --record`).
+    #[arg(required_unless_present = "simulate_dive")]
+    pub recording: Option<PathBuf>,
+    /// Instead of a recording: simulate a dive with this seed (the host dive simulator through
+    /// the shared navigation filter), write it to OUT/dive.snrec, and report on it with its truth.
+    #[arg(long, conflicts_with = "recording")]
+    pub simulate_dive: Option<u64>,
+    /// With --simulate-dive: dive length, s.
+    #[arg(long, default_value_t = 300.0)]
+    pub duration_s: f64,
+    /// Output directory for the figures, report.md and report.html.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Truth CSV (`t_s,n_m,e_m,d_m,yaw_rad`, sensor-head seconds; `subnav filter simulate --truth`
+    /// writes it). Default: the recording's truth stream, if any.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Firmware ELF to decode the defmt stream (default: the ELF named in the recording).
+    #[arg(long)]
+    pub elf: Option<PathBuf>,
+    /// Image format.
+    #[arg(long, value_enum, default_value_t = ImageFormat::Png)]
+    pub images: ImageFormat,
+    /// Page title.
+    #[arg(long, default_value = "subnav mission report")]
+    pub title: String,
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let recording = match (&args.recording, args.simulate_dive) {
+        (Some(r), _) => r.clone(),
+        (None, Some(seed)) => {
+            std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+            let p = args.out.join("dive.snrec");
+            let bar = super::record::progress_bar(0, "simulating the dive");
+            let opt = report::dive::DiveOptions { seed, duration_s: args.duration_s, ..Default::default() };
+            let s = report::dive::write_recording(&p, &opt)?;
+            bar.finish_and_clear();
+            eprintln!(
+                "simulated dive: {} nav, {} health, {} fault messages, {} truth rows -> {}",
+                s.nav,
+                s.health,
+                s.faults,
+                s.truth_rows,
+                p.display()
+            );
+            p
+        }
+        (None, None) => anyhow::bail!("give a recording, or --simulate-dive SEED"),
+    };
+    let (session, note) = super::export::load_session(&recording, args.elf.as_deref())?;
+    if let Some(n) = &note {
+        eprintln!("note: {n}");
+    }
+    let truth = match &args.truth {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading the truth file {}", p.display()))?;
+            let (rows, bad) = parse_truth_csv(&text);
+            if bad > 0 {
+                eprintln!("warning: {bad} lines of {} are not `t_s,n_m,e_m,d_m,yaw_rad` rows and were skipped", p.display());
+            }
+            if rows.is_empty() {
+                anyhow::bail!("{} has no truth rows (expected CSV lines t_s,n_m,e_m,d_m,yaw_rad)", p.display());
+            }
+            Some(rows)
+        }
+        None => None,
+    };
+    let data = ReportData::from_session(&session, truth);
+    let bar = super::record::progress_bar(report::plot::FIGURES.len() as u64, "drawing");
+    let written = report::write(&data, &args.out, args.images, &args.title, |name| {
+        bar.set_message(name.to_string());
+        bar.inc(1);
+    })?;
+    bar.finish_and_clear();
+    match format {
+        Format::Text => {
+            println!("report: {} ({} figures), {}", written.markdown.display(), written.figures.len(), written.html.display());
+            if let Some(s) = &written.stats {
+                println!(
+                    "errors vs truth ({} solutions): horizontal RMSE {:.3} m (max {:.3}), depth RMSE {:.3} m, heading RMSE {:.3} deg (max {:.3})",
+                    s.scored, s.horizontal_rmse_m, s.horizontal_max_m, s.depth_rmse_m, s.heading_rmse_deg, s.heading_max_deg
+                );
+            }
+        }
+        Format::Json => println!("{}", json!({"report": written})),
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,163 @@
+//! `subnav sim`: write a dive scenario (JSON) for `subnav run`: a lawnmower survey at depth at a
+//! date and place, water clarity, sensor grades, position fixes and injected faults.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+
+use super::Format;
+use subnav_sil::{FaultPlan, FixPlan, Scenario};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Where to write the scenario (JSON).
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Random seed (sensor errors, fix noise).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Dive length, s.
+    #[arg(long, default_value_t = 300.0)]
+    pub duration_s: f64,
+    /// UTC at boot, RFC 3339 (default: 2026-06-21T08:00:00Z, sun about 35 deg high over the Bay of Biscay).
+    #[arg(long)]
+    pub start: Option<String>,
+    /// Latitude and longitude of the NED origin, deg.
+    #[arg(long, default_value_t = 44.0, allow_hyphen_values = true)]
+    pub lat_deg: f64,
+    #[arg(long, default_value_t = -2.0, allow_hyphen_values = true)]
+    pub lon_deg: f64,
+    /// Survey depth (m), forward speed (m/s), leg length and spacing (m), first leg heading (deg,
+    /// default 17.2).
+    #[arg(long, default_value_t = 10.0)]
+    pub depth_m: f64,
+    #[arg(long, default_value_t = 1.0)]
+    pub speed_mps: f64,
+    #[arg(long, default_value_t = 60.0)]
+    pub leg_m: f64,
+    #[arg(long, default_value_t = 20.0)]
+    pub spacing_m: f64,
+    #[arg(long, allow_hyphen_values = true)]
+    pub heading_deg: Option<f64>,
+    /// Water clarity: attenuation scale on clear water (1 = clear, 3 = coastal).
+    #[arg(long, default_value_t = 1.0)]
+    pub turbidity: f64,
+    /// IMU noise relative to the grade the firmware is tuned for (ICM-42688-P).
+    #[arg(long, default_value_t = 1.0)]
+    pub imu_noise_scale: f64,
+    /// Position fix (USBL-like) interval, s, and 1-sigma per axis, m.
+    #[arg(long, default_value_t = 5.0)]
+    pub fix_period_s: f64,
+    #[arg(long, default_value_t = 2.0)]
+    pub fix_sigma_m: f64,
+    /// No position fixes (the horizontal position is then free-inertial).
+    #[arg(long)]
+    pub no_fixes: bool,
+    /// Faults: IMU NACKs from A to B s (`A,B`), a stuck IMU axis from T s (`T,AXIS`, axes 0-2
+    /// accel x/y/z, 3-5 gyro x/y/z), an occluded polarization unit (`A,B,UNIT`), depth NACK
+    /// probability.
+    #[arg(long)]
+    pub imu_nack: Option<String>,
+    #[arg(long)]
+    pub imu_stuck: Option<String>,
+    #[arg(long)]
+    pub occluded: Option<String>,
+    #[arg(long, default_value_t = 0.0)]
+    pub depth_nack_probability: f64,
+}
+
+fn numbers(s: &str, n: usize, what: &str) -> Result<Vec<f64>> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{what}: {s:?} is not {n} comma-separated numbers"))?;
+    if v.len() != n || v.iter().any(|x| !x.is_finite()) {
+        bail!("{what}: expected {n} comma-separated numbers, got {s:?}");
+    }
+    Ok(v)
+}
+
+/// The scenario the arguments describe (checked).
+pub fn scenario(a: &Args) -> Result<Scenario> {
+    let mut sc = Scenario { seed: a.seed, duration_s: a.duration_s, lat_deg: a.lat_deg, lon_deg: a.lon_deg, ..Scenario::default() };
+    if let Some(t) = &a.start {
+        sc.start_utc_unix_us = super::sun::parse_time_us(t)?;
+    }
+    let checks = [
+        (a.duration_s > 0.0 && a.duration_s <= 86_400.0, "--duration-s must be in (0, 86400]"),
+        ((-90.0..=90.0).contains(&a.lat_deg), "--lat-deg must be in [-90, 90]"),
+        ((-180.0..=180.0).contains(&a.lon_deg), "--lon-deg must be in [-180, 180]"),
+        (a.depth_m >= 0.0 && a.depth_m <= 300.0, "--depth-m must be in [0, 300] (the MS5837-30BA's range)"),
+        (a.speed_mps > 0.0 && a.speed_mps <= 5.0, "--speed-mps must be in (0, 5]"),
+        (a.leg_m > 0.0 && a.spacing_m > 0.0, "--leg-m and --spacing-m must be positive"),
+        (a.turbidity > 0.0 && a.turbidity.is_finite(), "--turbidity must be positive"),
+        (a.imu_noise_scale >= 0.0 && a.imu_noise_scale.is_finite(), "--imu-noise-scale must be >= 0"),
+        (
+            a.no_fixes || (a.fix_period_s > 0.0 && a.fix_sigma_m > 0.0),
+            "--fix-period-s and --fix-sigma-m must be positive (or use --no-fixes)",
+        ),
+        ((0.0..=1.0).contains(&a.depth_nack_probability), "--depth-nack-probability must be in [0, 1]"),
+    ];
+    if let Some((_, msg)) = checks.iter().find(|(ok, _)| !ok) {
+        bail!("{msg}");
+    }
+    sc.survey.depth_m = a.depth_m;
+    sc.survey.speed_mps = a.speed_mps;
+    sc.survey.leg_m = a.leg_m;
+    sc.survey.spacing_m = a.spacing_m;
+    if let Some(h) = a.heading_deg {
+        if !h.is_finite() {
+            bail!("--heading-deg must be finite");
+        }
+        sc.survey.heading0_rad = h.to_radians();
+    }
+    sc.turbidity = a.turbidity;
+    sc.imu_noise_scale = a.imu_noise_scale;
+    sc.position_fixes = (!a.no_fixes).then_some(FixPlan { period_s: a.fix_period_s, sigma_m: a.fix_sigma_m });
+    let mut f = FaultPlan { depth_nack_probability: a.depth_nack_probability, ..FaultPlan::default() };
+    if let Some(s) = &a.imu_nack {
+        let v = numbers(s, 2, "--imu-nack")?;
+        f.imu_nack_s = Some((v[0], v[1]));
+    }
+    if let Some(s) = &a.imu_stuck {
+        let v = numbers(s, 2, "--imu-stuck")?;
+        if !(0.0..=5.0).contains(&v[1]) || v[1].fract() != 0.0 {
+            bail!("--imu-stuck: the axis must be 0..5, got {}", v[1]);
+        }
+        f.imu_stuck_axis = Some((v[0], v[1] as usize));
+    }
+    if let Some(s) = &a.occluded {
+        let v = numbers(s, 3, "--occluded")?;
+        if !(0.0..=3.0).contains(&v[2]) || v[2].fract() != 0.0 {
+            bail!("--occluded: the unit must be 0..3, got {}", v[2]);
+        }
+        f.occluded_unit = Some((v[0], v[1], v[2] as usize));
+    }
+    sc.faults = f;
+    Ok(sc)
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let sc = scenario(&args)?;
+    let json = serde_json::to_string_pretty(&sc)?;
+    std::fs::write(&args.out, json + "\n").with_context(|| format!("writing {}", args.out.display()))?;
+    let fixes = sc.fixes().len();
+    match format {
+        Format::Json => println!(
+            "{}",
+            serde_json::json!({ "scenario": args.out, "duration_s": sc.duration_s, "seed": sc.seed, "position_fixes": fixes })
+        ),
+        Format::Text => println!(
+            "scenario {}: {:.0} s dive, seed {}, survey at {} m, {} position fixes; run it with `subnav run {}`",
+            args.out.display(),
+            sc.duration_s,
+            sc.seed,
+            sc.survey.depth_m,
+            fixes,
+            args.out.display()
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
+}

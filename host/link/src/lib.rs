@@ -1,0 +1,12 @@
+//! The telemetry link on the host side: decoding the uplink byte stream ([`uplink`]), the defmt
+//! log stream ([`defmt_log`]), opening sources (file, TCP, serial: [`source`]) and running the
+//! firmware in QEMU ([`qemu`]).
+
+pub mod defmt_log;
+pub mod export;
+pub mod qemu;
+pub mod record;
+pub mod source;
+pub mod uplink;
+
+pub use uplink::{LinkEvent, LinkStats, UplinkDecoder};

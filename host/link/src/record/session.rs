@@ -1,0 +1,128 @@
+//! A recording decoded: uplink messages, corrupt frames, defmt log lines, downlink commands and
+//! truth rows, each with the host time its bytes arrived. `export` and `report` work on this.
+
+use serde::Serialize;
+use subnav_wire::{Decoded, Downlink, FrameDecoder, MAX_DOWNLINK_FRAME, Uplink};
+
+use super::reader::{Damage, Loaded};
+use super::{Meta, Stream};
+use crate::defmt_log::{DefmtTable, LogLine};
+use crate::uplink::{LinkEvent, LinkStats, UplinkDecoder};
+
+/// Something with the host time (µs since the Unix epoch) of the chunk it came in.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Timed<T> {
+    pub t_host_us: u64,
+    pub item: T,
+}
+
+/// A truth sample from a simulator (sensor-head time).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TruthRow {
+    pub t_s: f64,
+    pub pos_ned_m: [f64; 3],
+    pub yaw_rad: f64,
+}
+
+/// Everything in a recording, decoded.
+#[derive(Debug, Clone, Default)]
+pub struct Session {
+    pub meta: Meta,
+    pub messages: Vec<Timed<Uplink>>,
+    /// Corrupt uplink frames (the error text).
+    pub corrupt: Vec<Timed<String>>,
+    /// Incompatible boot messages (the explanation).
+    pub incompatible: Vec<Timed<String>>,
+    pub logs: Vec<Timed<LogLine>>,
+    /// Bytes of the defmt stream (decoded into `logs` only when the firmware ELF is known).
+    pub defmt_bytes: u64,
+    pub defmt_malformed: u64,
+    pub downlink: Vec<Timed<Downlink>>,
+    pub downlink_corrupt: u64,
+    pub truth: Vec<TruthRow>,
+    /// Truth lines that did not parse (line text).
+    pub truth_bad_lines: u64,
+    pub link: LinkStats,
+    /// Bytes of an unfinished uplink frame at the end.
+    pub trailing_bytes: usize,
+    pub damage: Vec<Damage>,
+}
+
+/// Parse truth CSV text (`t_s,n_m,e_m,d_m,yaw_rad`, header lines and blank lines skipped).
+/// Returns the rows and the number of lines that were neither a header nor a valid row.
+pub fn parse_truth_csv(text: &str) -> (Vec<TruthRow>, u64) {
+    let (mut rows, mut bad) = (vec![], 0u64);
+    for line in text.lines() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with("t_s") {
+            continue;
+        }
+        let v: Vec<Option<f64>> = line.split(',').map(|f| f.trim().parse::<f64>().ok()).collect();
+        match v.as_slice() {
+            [Some(t), Some(n), Some(e), Some(d), Some(y), ..] if [*t, *n, *e, *d, *y].iter().all(|x| x.is_finite()) => {
+                rows.push(TruthRow { t_s: *t, pos_ned_m: [*n, *e, *d], yaw_rad: *y })
+            }
+            _ => bad += 1,
+        }
+    }
+    (rows, bad)
+}
+
+impl Session {
+    /// Decode a loaded recording. `table` decodes the defmt stream (from `--elf` or the ELF
+    /// named in the recording's metadata); without it, log bytes are only counted.
+    pub fn decode(loaded: &Loaded, table: Option<&DefmtTable>) -> Session {
+        let mut s = Session { meta: loaded.meta.clone(), damage: loaded.damage.clone(), ..Session::default() };
+        let mut up = UplinkDecoder::new();
+        let mut down = FrameDecoder::<MAX_DOWNLINK_FRAME>::new();
+        let mut logs = table.map(|t| t.stream());
+        let mut truth_text = String::new();
+        for c in &loaded.chunks {
+            let t = c.t_host_us;
+            match c.stream {
+                Stream::Uplink => up.feed(&c.data, |e| match e {
+                    LinkEvent::Message(m) => s.messages.push(Timed { t_host_us: t, item: m }),
+                    LinkEvent::Corrupt(err) => s.corrupt.push(Timed { t_host_us: t, item: err.to_string() }),
+                    LinkEvent::Incompatible(c) => s.incompatible.push(Timed { t_host_us: t, item: crate::uplink::describe(&c) }),
+                }),
+                Stream::Defmt => {
+                    s.defmt_bytes += c.data.len() as u64;
+                    if let Some(l) = logs.as_mut() {
+                        l.feed(&c.data, |line| s.logs.push(Timed { t_host_us: t, item: line }));
+                    }
+                }
+                Stream::Downlink => {
+                    for &b in &c.data {
+                        match down.push::<Downlink>(b) {
+                            Decoded::Message(d) => s.downlink.push(Timed { t_host_us: t, item: d }),
+                            Decoded::Corrupt(_) => s.downlink_corrupt += 1,
+                            Decoded::Pending => {}
+                        }
+                    }
+                }
+                Stream::Truth => truth_text.push_str(&String::from_utf8_lossy(&c.data)),
+            }
+        }
+        s.defmt_malformed = logs.map(|l| l.malformed).unwrap_or(0);
+        let (truth, bad) = parse_truth_csv(&truth_text);
+        s.truth = truth;
+        s.truth_bad_lines = bad;
+        s.link = up.stats();
+        s.trailing_bytes = up.trailing_bytes();
+        s
+    }
+
+    /// Messages of one kind (`Uplink::kind`), in order.
+    pub fn of_kind<'a>(&'a self, kind: &'a str) -> impl Iterator<Item = &'a Timed<Uplink>> + 'a {
+        self.messages.iter().filter(move |m| m.item.kind() == kind)
+    }
+
+    /// Message counts per kind, sorted by kind.
+    pub fn counts(&self) -> std::collections::BTreeMap<&'static str, u64> {
+        let mut m = std::collections::BTreeMap::new();
+        for x in &self.messages {
+            *m.entry(x.item.kind()).or_insert(0) += 1;
+        }
+        m
+    }
+}

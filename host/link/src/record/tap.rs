@@ -1,0 +1,45 @@
+//! Recording a QEMU run: a thread that writes the runner's raw byte chunks
+//! ([`QemuConfig::raw_tap`](crate::qemu::QemuConfig::raw_tap)) into a recording as they come.
+
+use std::path::Path;
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+
+use anyhow::{Result, anyhow};
+
+use super::{Meta, Stream, Writer};
+use crate::qemu::{QemuConfig, RawBytes};
+
+/// A recording in progress; call [`QemuRecorder::finish`] after the run (and after dropping
+/// every clone of the config's tap) to flush it and get its chunk counts.
+pub struct QemuRecorder {
+    handle: JoinHandle<Result<[u64; 4]>>,
+}
+
+impl QemuRecorder {
+    /// Create the recording at `path` and point `cfg.raw_tap` at it.
+    pub fn start(cfg: &mut QemuConfig, path: &Path) -> Result<Self> {
+        let mut meta = Meta::new(format!("qemu {}", cfg.elf.display()));
+        meta.elf = Some(cfg.elf.display().to_string());
+        let mut w = Writer::create(path, &meta)?;
+        let (tx, rx) = mpsc::channel::<RawBytes>();
+        cfg.raw_tap = Some(tx);
+        let handle = std::thread::spawn(move || -> Result<[u64; 4]> {
+            for raw in rx {
+                match raw {
+                    RawBytes::Telemetry(b) => w.chunk_now(Stream::Uplink, &b)?,
+                    RawBytes::Defmt(b) => w.chunk_now(Stream::Defmt, &b)?,
+                    RawBytes::Downlink(b) => w.chunk_now(Stream::Downlink, &b)?,
+                }
+            }
+            w.flush()?;
+            Ok(w.chunks)
+        });
+        Ok(Self { handle })
+    }
+
+    /// Wait for the writer (the run must be over and `cfg.raw_tap` dropped or taken).
+    pub fn finish(self) -> Result<[u64; 4]> {
+        self.handle.join().map_err(|_| anyhow!("the recording thread panicked"))?
+    }
+}

@@ -1,0 +1,355 @@
+//! Mission report from a recording (and truth, when the dive was simulated): figures with
+//! plotters ([`plot`]) and a Markdown + HTML page that links them, with error statistics when
+//! truth exists.
+//!
+//! Truth comes from the recording's truth stream or a CSV `t_s,n_m,e_m,d_m,yaw_rad` (the format
+//! `subnav filter simulate --truth` writes), in sensor-head seconds. Estimates are compared with
+//! truth linearly interpolated to each navigation solution's time (yaw interpolated on the
+//! circle); solutions outside the truth's time span are not scored.
+
+pub mod dive;
+pub mod plot;
+
+use std::f64::consts::PI;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use subnav_wire::{NavMode, Uplink};
+
+use subnav_link::record::session::{Session, TruthRow};
+
+/// Yaw (rad, from north, clockwise) of a body->NED quaternion `[w, x, y, z]`.
+pub fn yaw_of(q: [f32; 4]) -> f64 {
+    let [w, x, y, z] = q.map(f64::from);
+    (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
+}
+
+/// Wrap an angle to (-pi, pi].
+pub fn wrap(a: f64) -> f64 {
+    let r = (a + PI).rem_euclid(2.0 * PI) - PI;
+    if r <= -PI { r + 2.0 * PI } else { r }
+}
+
+/// One navigation solution as plotted.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct NavPoint {
+    pub t_s: f64,
+    pub pos_ned_m: [f64; 3],
+    pub sigma_pos_m: [f64; 3],
+    pub yaw_rad: f64,
+    pub sigma_yaw_rad: f64,
+    pub aided: bool,
+}
+
+/// Estimate minus truth at one navigation solution.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ErrPoint {
+    pub t_s: f64,
+    pub pos_err_ned_m: [f64; 3],
+    pub yaw_err_rad: f64,
+    pub truth_ned_m: [f64; 3],
+    pub truth_yaw_rad: f64,
+}
+
+/// Health sample (NaN = no value yet).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct HealthPoint {
+    pub t_s: f64,
+    pub lambda: f64,
+    pub nis: [f64; 4],
+    pub q_diag: [f64; 5],
+    pub r_diag: [f64; 4],
+    pub gate_rejects: u32,
+    pub pd_repairs: u32,
+}
+
+/// A fault on the timeline.
+#[derive(Debug, Clone, Serialize)]
+pub struct FaultPoint {
+    pub t_s: f64,
+    /// `source/kind`, e.g. `Polarization{unit:2}/BusNack`.
+    pub label: String,
+    pub count: u32,
+}
+
+/// Error statistics (only when truth exists).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct ErrorStats {
+    pub scored: usize,
+    pub horizontal_rmse_m: f64,
+    pub horizontal_max_m: f64,
+    pub horizontal_final_m: f64,
+    pub depth_rmse_m: f64,
+    pub heading_rmse_deg: f64,
+    pub heading_max_deg: f64,
+    /// Fraction of scored solutions whose error is within +-3 sigma, per axis N, E, D, yaw.
+    pub within_3sigma: [f64; 4],
+}
+
+/// The data of a report.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ReportData {
+    pub nav: Vec<NavPoint>,
+    pub truth: Vec<TruthRow>,
+    pub errors: Vec<ErrPoint>,
+    pub health: Vec<HealthPoint>,
+    pub faults: Vec<FaultPoint>,
+    pub stats: Option<ErrorStats>,
+    pub corrupt_frames: u64,
+    pub frames_ok: u64,
+    pub log_lines: usize,
+    pub nav_uninitialised: usize,
+}
+
+fn f(x: f32) -> f64 {
+    f64::from(x)
+}
+
+/// Truth at `t_s` by linear interpolation (None outside the truth's span).
+pub fn truth_at(truth: &[TruthRow], t_s: f64) -> Option<([f64; 3], f64)> {
+    let i = truth.partition_point(|r| r.t_s < t_s);
+    let b = truth.get(i)?;
+    if (b.t_s - t_s).abs() < 1e-9 {
+        return Some((b.pos_ned_m, b.yaw_rad));
+    }
+    let a = truth.get(i.checked_sub(1)?)?;
+    let u = (t_s - a.t_s) / (b.t_s - a.t_s);
+    let p = [0, 1, 2].map(|k| a.pos_ned_m[k] + u * (b.pos_ned_m[k] - a.pos_ned_m[k]));
+    Some((p, wrap(a.yaw_rad + u * wrap(b.yaw_rad - a.yaw_rad))))
+}
+
+impl ReportData {
+    /// Collect what the report shows. `truth` overrides the recording's truth stream when given.
+    pub fn from_session(s: &Session, truth: Option<Vec<TruthRow>>) -> Self {
+        let mut d =
+            ReportData { corrupt_frames: s.link.frames_bad, frames_ok: s.link.frames_ok, log_lines: s.logs.len(), ..Default::default() };
+        let mut truth = truth.unwrap_or_else(|| s.truth.clone());
+        truth.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+        d.truth = truth;
+        for m in &s.messages {
+            match &m.item {
+                Uplink::Nav(n) => {
+                    if n.mode == NavMode::Uninitialised {
+                        d.nav_uninitialised += 1;
+                        continue;
+                    }
+                    let p = NavPoint {
+                        t_s: n.t_us as f64 * 1e-6,
+                        pos_ned_m: n.pos_ned_m.map(f),
+                        sigma_pos_m: n.sigma_pos_m.map(f),
+                        yaw_rad: yaw_of(n.att_nb_wxyz),
+                        sigma_yaw_rad: f(n.sigma_att_rad[2]),
+                        aided: n.mode == NavMode::Aided,
+                    };
+                    if p.pos_ned_m.iter().chain(&[p.yaw_rad]).all(|v| v.is_finite()) {
+                        d.nav.push(p);
+                    }
+                }
+                Uplink::Health(h) => d.health.push(HealthPoint {
+                    t_s: h.t_us as f64 * 1e-6,
+                    lambda: f(h.lambda),
+                    nis: h.nis.map(f),
+                    q_diag: h.q_diag.map(f),
+                    r_diag: h.r_diag.map(f),
+                    gate_rejects: h.gate_rejects,
+                    pd_repairs: h.pd_repairs,
+                }),
+                Uplink::Fault(x) => d.faults.push(FaultPoint {
+                    t_s: x.t_us as f64 * 1e-6,
+                    label: format!("{:?}/{:?}", x.source, x.kind).replace(' ', ""),
+                    count: x.count,
+                }),
+                _ => {}
+            }
+        }
+        for n in &d.nav {
+            if let Some((p, y)) = truth_at(&d.truth, n.t_s) {
+                d.errors.push(ErrPoint {
+                    t_s: n.t_s,
+                    pos_err_ned_m: [0, 1, 2].map(|k| n.pos_ned_m[k] - p[k]),
+                    yaw_err_rad: wrap(n.yaw_rad - y),
+                    truth_ned_m: p,
+                    truth_yaw_rad: y,
+                });
+            }
+        }
+        d.stats = d.error_stats();
+        d
+    }
+
+    fn error_stats(&self) -> Option<ErrorStats> {
+        if self.errors.is_empty() {
+            return None;
+        }
+        let n = self.errors.len() as f64;
+        let h: Vec<f64> = self.errors.iter().map(|e| e.pos_err_ned_m[0].hypot(e.pos_err_ned_m[1])).collect();
+        let mut within = [0.0; 4];
+        // errors and nav share order: errors are the nav points inside the truth's span.
+        let mut j = 0;
+        for e in &self.errors {
+            while self.nav.get(j).is_some_and(|p| p.t_s < e.t_s) {
+                j += 1;
+            }
+            if let Some(p) = self.nav.get(j) {
+                for k in 0..3 {
+                    if e.pos_err_ned_m[k].abs() <= 3.0 * p.sigma_pos_m[k] {
+                        within[k] += 1.0;
+                    }
+                }
+                if e.yaw_err_rad.abs() <= 3.0 * p.sigma_yaw_rad {
+                    within[3] += 1.0;
+                }
+            }
+        }
+        Some(ErrorStats {
+            scored: self.errors.len(),
+            horizontal_rmse_m: (h.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+            horizontal_max_m: h.iter().copied().fold(0.0, f64::max),
+            horizontal_final_m: h.last().copied().unwrap_or(0.0),
+            depth_rmse_m: (self.errors.iter().map(|e| e.pos_err_ned_m[2].powi(2)).sum::<f64>() / n).sqrt(),
+            heading_rmse_deg: (self.errors.iter().map(|e| e.yaw_err_rad.powi(2)).sum::<f64>() / n).sqrt().to_degrees(),
+            heading_max_deg: self.errors.iter().map(|e| e.yaw_err_rad.abs()).fold(0.0, f64::max).to_degrees(),
+            within_3sigma: within.map(|w| w / n),
+        })
+    }
+}
+
+/// Output image formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+pub enum ImageFormat {
+    Png,
+    Svg,
+    Both,
+}
+
+/// What `write` produced.
+#[derive(Debug, Clone, Serialize)]
+pub struct Written {
+    pub figures: Vec<PathBuf>,
+    pub markdown: PathBuf,
+    pub html: PathBuf,
+    pub stats: Option<ErrorStats>,
+}
+
+/// Write the figures, `report.md` and `report.html` into `dir`.
+pub fn write(d: &ReportData, dir: &Path, images: ImageFormat, title: &str, mut progress: impl FnMut(&str)) -> Result<Written> {
+    if d.nav.is_empty() && d.health.is_empty() && d.faults.is_empty() {
+        bail!(
+            "nothing to report: the recording has no initialised navigation solutions, health or fault messages ({} nav messages were Uninitialised); record a run with the estimator running",
+            d.nav_uninitialised
+        );
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let exts: &[&str] = match images {
+        ImageFormat::Png => &["png"],
+        ImageFormat::Svg => &["svg"],
+        ImageFormat::Both => &["png", "svg"],
+    };
+    let mut figures = vec![];
+    let mut sections: Vec<(&str, String, &str)> = vec![];
+    for (name, caption, draw) in plot::FIGURES {
+        progress(name);
+        let mut drew = false;
+        for ext in exts {
+            let p = dir.join(format!("{name}.{ext}"));
+            if draw(d, &p)? {
+                figures.push(p);
+                drew = true;
+            }
+        }
+        if drew {
+            sections.push((name, format!("{name}.{}", exts[0]), caption));
+        }
+    }
+    let mut md = format!("# {title}\n\n");
+    let _ = writeln!(
+        md,
+        "{} navigation solutions ({} before initialisation not shown), {} health, {} fault messages, {} log lines; {} frames decoded, {} corrupt.\n",
+        d.nav.len(),
+        d.nav_uninitialised,
+        d.health.len(),
+        d.faults.len(),
+        d.log_lines,
+        d.frames_ok,
+        d.corrupt_frames
+    );
+    match &d.stats {
+        Some(s) => {
+            let _ = writeln!(md, "## Errors against truth ({} solutions scored)\n", s.scored);
+            let _ = writeln!(md, "| metric | value |\n|---|---:|");
+            let _ = writeln!(md, "| horizontal RMSE | {:.3} m |", s.horizontal_rmse_m);
+            let _ = writeln!(md, "| horizontal max | {:.3} m |", s.horizontal_max_m);
+            let _ = writeln!(md, "| horizontal final | {:.3} m |", s.horizontal_final_m);
+            let _ = writeln!(md, "| depth RMSE | {:.3} m |", s.depth_rmse_m);
+            let _ = writeln!(md, "| heading RMSE | {:.3} deg |", s.heading_rmse_deg);
+            let _ = writeln!(md, "| heading max | {:.3} deg |", s.heading_max_deg);
+            let _ = writeln!(
+                md,
+                "| within 3 sigma (N / E / D / yaw) | {:.1} / {:.1} / {:.1} / {:.1} % |\n",
+                100.0 * s.within_3sigma[0],
+                100.0 * s.within_3sigma[1],
+                100.0 * s.within_3sigma[2],
+                100.0 * s.within_3sigma[3]
+            );
+        }
+        None => {
+            md.push_str("No truth: error statistics need a simulated dive's truth (`--truth`, or a truth stream in the recording).\n\n")
+        }
+    }
+    for (name, file, caption) in &sections {
+        let _ = writeln!(md, "## {name}\n\n{caption}\n\n![{name}]({file})\n");
+    }
+    let markdown = dir.join("report.md");
+    std::fs::write(&markdown, &md).with_context(|| format!("writing {}", markdown.display()))?;
+    let html = dir.join("report.html");
+    std::fs::write(&html, to_html(&md)).with_context(|| format!("writing {}", html.display()))?;
+    Ok(Written { figures, markdown, html, stats: d.stats })
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// The Markdown page as HTML (only the constructs `write` produces: headings, tables, images,
+/// paragraphs).
+fn to_html(md: &str) -> String {
+    let mut h = String::from(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>subnav report</title><style>body{font-family:sans-serif;max-width:1000px;margin:auto}img{max-width:100%}table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px}</style></head><body>\n",
+    );
+    let mut in_table = false;
+    for line in md.lines() {
+        if line.starts_with('|') {
+            if line.starts_with("|---") {
+                continue;
+            }
+            if !in_table {
+                h.push_str("<table>\n");
+                in_table = true;
+            }
+            let cells: Vec<String> = line.trim_matches('|').split('|').map(|c| format!("<td>{}</td>", esc(c.trim()))).collect();
+            let _ = writeln!(h, "<tr>{}</tr>", cells.join(""));
+            continue;
+        }
+        if in_table {
+            h.push_str("</table>\n");
+            in_table = false;
+        }
+        if let Some(t) = line.strip_prefix("## ") {
+            let _ = writeln!(h, "<h2>{}</h2>", esc(t));
+        } else if let Some(t) = line.strip_prefix("# ") {
+            let _ = writeln!(h, "<h1>{}</h1>", esc(t));
+        } else if let Some(rest) = line.strip_prefix("![") {
+            let (alt, src) = rest.split_once("](").unwrap_or((rest, ""));
+            let _ = writeln!(h, "<img alt=\"{}\" src=\"{}\">", esc(alt), esc(src.trim_end_matches(')')));
+        } else if !line.trim().is_empty() {
+            let _ = writeln!(h, "<p>{}</p>", esc(line));
+        }
+    }
+    if in_table {
+        h.push_str("</table>\n");
+    }
+    h.push_str("</body></html>\n");
+    h
+}

@@ -1,0 +1,10 @@
+//! Dive simulator for sensors-in-the-loop runs: the truth trajectory ([`trajectory`]) and the
+//! simulated sensor head ([`head`]) that answers the firmware's bus transactions under QEMU.
+
+pub mod chips;
+pub mod dive;
+pub mod filter;
+pub mod head;
+pub mod sil;
+
+pub use head::{FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};

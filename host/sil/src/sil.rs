@@ -1,0 +1,163 @@
+//! Native software-in-the-loop: the firmware's application core (`subnav_firmware::App`, its
+//! drivers and `HeadSuite`), compiled for the host, scheduled on the same 1 ms logical tick as
+//! the QEMU board, with its buses carried by the same bridge protocol to the same chip models
+//! ([`SimHead`]). Only the CPU differs (f32 maths on x86 instead of the M4F's FPU), so a native
+//! dive follows the QEMU dive closely but not bit for bit.
+//!
+//! Why: a 5-minute dive takes minutes under QEMU; natively it takes seconds, which makes seed
+//! sweeps and filter tuning practical. The QEMU run stays the reference (`run_dive`).
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+
+use subnav_firmware::App;
+use subnav_firmware::TelemetrySink;
+use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
+use subnav_firmware::head_suite::HeadSuite;
+use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
+use subnav_wire::{
+    self as wire, Board, Command, ConfigItem, Decoded, Downlink, FrameDecoder, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, Uplink,
+};
+
+use super::dive::{DiveResult, evaluate};
+use super::head::{FIX_LEAD_S, Scenario, SimHead};
+use subnav_link::qemu::BusHandler;
+
+/// The bridge's byte link, answered in process by the chip models.
+struct InProcessLink {
+    head: SimHead,
+    rx: VecDeque<u8>,
+    dec: FrameDecoder<MAX_REQUEST_FRAME>,
+    transactions: u64,
+}
+
+impl ByteLink for InProcessLink {
+    fn write_all(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            if let Decoded::Message(req) = self.dec.push::<BusRequest>(b) {
+                let resp: BusResponse = self.head.handle(&req);
+                self.transactions += 1;
+                let mut buf = [0u8; MAX_RESPONSE_FRAME];
+                // A response always fits its maximum frame; an encoding failure would be a bug
+                // in `shared` and shows up as a bus timeout in the firmware.
+                if let Ok(frame) = wire::encode(&resp, &mut buf) {
+                    self.rx.extend(frame.iter());
+                }
+            }
+        }
+    }
+    fn read_byte(&mut self) -> Option<u8> {
+        self.rx.pop_front()
+    }
+}
+
+/// Telemetry decoded as it is written (and kept as frames, stamped with firmware time).
+struct Collect {
+    dec: FrameDecoder<MAX_UPLINK_FRAME>,
+    msgs: Vec<Uplink>,
+    corrupt: u64,
+    now_us: u64,
+    frames: Vec<(u64, Vec<u8>)>,
+}
+
+impl TelemetrySink for Collect {
+    fn write_frame(&mut self, frame: &[u8]) -> bool {
+        self.frames.push((self.now_us, frame.to_vec()));
+        for &b in frame {
+            match self.dec.push::<Uplink>(b) {
+                Decoded::Message(m) => self.msgs.push(m),
+                Decoded::Corrupt(_) => self.corrupt += 1,
+                Decoded::Pending => {}
+            }
+        }
+        true
+    }
+}
+
+/// Telemetry of a native run.
+pub struct NativeRun {
+    pub messages: Vec<Uplink>,
+    /// The uplink frames as the firmware wrote them, with its time (µs) of writing.
+    pub frames: Vec<(u64, Vec<u8>)>,
+    /// Downlink frames sent (position fixes), with the firmware time they were sent at.
+    pub downlink: Vec<(u64, Vec<u8>)>,
+    pub corrupt_frames: u64,
+    pub bus_transactions: u64,
+}
+
+/// Run the scenario natively for `sc.duration_s` and return the telemetry.
+pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
+    let mut sink = Collect { dec: FrameDecoder::new(), msgs: Vec::new(), corrupt: 0, now_us: 0, frames: Vec::new() };
+    let mut downlink = Vec::new();
+    let mut app = App::new(Board::QemuMps2An386);
+    app.boot(0, &mut sink);
+    app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: sc.start_utc_unix_us } }, &mut sink);
+    let origin = ConfigItem::Origin { lat_rad: sc.lat_deg.to_radians(), lon_rad: sc.lon_deg.to_radians(), alt_m: 0.0 };
+    app.handle_command(0, Downlink { seq: 0, command: Command::SetConfig(origin) }, &mut sink);
+
+    let link = InProcessLink { head: SimHead::new(sc), rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
+    let bridge = RefCell::new(BridgeClient::new(link));
+    bridge.borrow_mut().max_polls = 4;
+    let mut delay = BridgeDelay::new(&bridge);
+    let mut suite = HeadSuite::new(
+        BridgeSpi::new(&bridge, 0, 0),
+        core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
+        BridgeI2c::new(&bridge, 0),
+        &mut delay,
+    );
+    let end_ms = (sc.duration_s * 1000.0).round() as u64;
+    let fixes = sc.fixes();
+    let mut next_fix = 0;
+    let mut seq = 1u16;
+    for ms in 0..=end_ms {
+        let t_us = ms * 1000;
+        // Fixes go over the downlink byte path, FIX_LEAD_S ahead of their time, as under QEMU.
+        while let Some(f) = fixes.get(next_fix).filter(|f| f.t_s - FIX_LEAD_S <= ms as f64 * 1e-3) {
+            let mut buf = [0u8; MAX_DOWNLINK_FRAME];
+            if let Ok(frame) = wire::encode(&Downlink { seq, command: f.command() }, &mut buf) {
+                downlink.push((t_us, frame.to_vec()));
+                app.on_downlink_bytes(t_us, frame, &mut sink);
+            }
+            seq = seq.wrapping_add(1);
+            next_fix += 1;
+        }
+        sink.now_us = t_us;
+        if let Some(p) = progress.filter(|_| ms % 1000 == 0) {
+            p(ms as f64 * 1e-3);
+        }
+        bridge.borrow_mut().set_time(t_us);
+        app.sensor_tick(t_us, &mut suite, &mut sink);
+        let _ = app.poll(t_us, &mut sink);
+    }
+    let transactions = bridge.into_inner().link_mut().transactions;
+    NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions }
+}
+
+impl NativeRun {
+    /// Write the run as a recording (uplink and downlink frames; the "host time" of each chunk
+    /// is the firmware time it was written at, plus `t0_unix_us`).
+    pub fn write_recording(&self, path: &std::path::Path, sc: &Scenario) -> anyhow::Result<()> {
+        use subnav_link::record::{Meta, Stream, Writer};
+        let meta = Meta::new(format!("native software-in-the-loop, scenario seed {}", sc.seed));
+        let mut w = Writer::create(path, &meta)?;
+        let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
+        let mut down = self.downlink.iter().peekable();
+        for (t, f) in &self.frames {
+            while let Some((td, d)) = down.next_if(|(td, _)| td <= t) {
+                w.chunk(Stream::Downlink, t0 + td, d)?;
+            }
+            w.chunk(Stream::Uplink, t0 + t, f)?;
+        }
+        for (td, d) in down {
+            w.chunk(Stream::Downlink, t0 + td, d)?;
+        }
+        w.flush()
+    }
+}
+
+/// Run natively and evaluate against the truth (exit code `Some(0)`: the native run has no
+/// process to fail; a panic would unwind through the caller).
+pub fn run_dive_native(sc: &Scenario) -> DiveResult {
+    let run = run_native(sc, None);
+    evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
+}

@@ -1,9 +1,0 @@
-//! Dive simulator for sensors-in-the-loop runs: the truth trajectory ([`trajectory`]) and the
-//! simulated sensor head ([`head`]) that answers the firmware's bus transactions under QEMU.
-
-pub mod dive;
-pub mod head;
-pub mod sil;
-pub mod trajectory;
-
-pub use head::{FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};

@@ -1,0 +1,17 @@
+//! Topological mapping from polarization images (spec A3, A5): a scene renderer for the
+//! simulator ([`scene`]), the map of places with their image samples and association in the
+//! LMNN metric ([`map`]), the AUKF-SLAM filter state augmented with the node positions
+//! ([`slam`]), a simulated survey with revisits and its evaluation ([`survey`]), and map export
+//! (JSON, GraphML, a PNG plot of the graph over the trajectory: [`export`]).
+//!
+//! The position fixes are produced as wire `Downlink` `PositionFix` commands (and their encoded
+//! frames); sending them over a live link to the firmware is not wired up here (the simulated
+//! survey has no firmware in the loop).
+
+pub mod export;
+pub mod lmnn;
+pub mod map;
+pub mod polar_image;
+pub mod scene;
+pub mod slam;
+pub mod survey;
