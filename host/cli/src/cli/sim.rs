@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 
-use super::Format;
+use super::{Format, args};
 use subnav_sil::{FaultPlan, FixPlan, Scenario};
 
 #[derive(clap::Args, Debug)]
@@ -54,29 +54,18 @@ pub struct Args {
     /// No position fixes (the horizontal position is then free-inertial).
     #[arg(long)]
     pub no_fixes: bool,
-    /// Faults: IMU NACKs from A to B s (`A,B`), a stuck IMU axis from T s (`T,AXIS`, axes 0-2
-    /// accel x/y/z, 3-5 gyro x/y/z), an occluded polarization unit (`A,B,UNIT`), depth NACK
-    /// probability.
-    #[arg(long)]
-    pub imu_nack: Option<String>,
-    #[arg(long)]
-    pub imu_stuck: Option<String>,
-    #[arg(long)]
-    pub occluded: Option<String>,
+    /// Fault: the IMU NACKs every transaction from A to B s (`A,B`).
+    #[arg(long, value_name = "A,B", value_parser = args::parse_window)]
+    pub imu_nack: Option<args::Window>,
+    /// Fault: an IMU axis stuck from T s on (`T,AXIS`; axes 0-2 accel x/y/z, 3-5 gyro x/y/z).
+    #[arg(long, value_name = "T,AXIS", value_parser = args::parse_stuck_axis)]
+    pub imu_stuck: Option<args::StuckAxis>,
+    /// Fault: a polarization unit occluded from A to B s (`A,B,UNIT`; units 0-3).
+    #[arg(long, value_name = "A,B,UNIT", value_parser = args::parse_occlusion)]
+    pub occluded: Option<args::Occlusion>,
+    /// Fault: probability that a depth-sensor transaction is NACKed.
     #[arg(long, default_value_t = 0.0)]
     pub depth_nack_probability: f64,
-}
-
-fn numbers(s: &str, n: usize, what: &str) -> Result<Vec<f64>> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("{what}: {s:?} is not {n} comma-separated numbers"))?;
-    if v.len() != n || v.iter().any(|x| !x.is_finite()) {
-        bail!("{what}: expected {n} comma-separated numbers, got {s:?}");
-    }
-    Ok(v)
 }
 
 /// The scenario the arguments describe (checked).
@@ -117,24 +106,9 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
     sc.imu_noise_scale = a.imu_noise_scale;
     sc.position_fixes = (!a.no_fixes).then_some(FixPlan { period_s: a.fix_period_s, sigma_m: a.fix_sigma_m });
     let mut f = FaultPlan { depth_nack_probability: a.depth_nack_probability, ..FaultPlan::default() };
-    if let Some(s) = &a.imu_nack {
-        let v = numbers(s, 2, "--imu-nack")?;
-        f.imu_nack_s = Some((v[0], v[1]));
-    }
-    if let Some(s) = &a.imu_stuck {
-        let v = numbers(s, 2, "--imu-stuck")?;
-        if !(0.0..=5.0).contains(&v[1]) || v[1].fract() != 0.0 {
-            bail!("--imu-stuck: the axis must be 0..5, got {}", v[1]);
-        }
-        f.imu_stuck_axis = Some((v[0], v[1] as usize));
-    }
-    if let Some(s) = &a.occluded {
-        let v = numbers(s, 3, "--occluded")?;
-        if !(0.0..=3.0).contains(&v[2]) || v[2].fract() != 0.0 {
-            bail!("--occluded: the unit must be 0..3, got {}", v[2]);
-        }
-        f.occluded_unit = Some((v[0], v[1], v[2] as usize));
-    }
+    f.imu_nack_s = a.imu_nack.map(|w| (w.start_s, w.end_s));
+    f.imu_stuck_axis = a.imu_stuck.map(|s| (s.from_s, s.axis));
+    f.occluded_unit = a.occluded.map(|o| (o.window.start_s, o.window.end_s, o.unit));
     sc.faults = f;
     Ok(sc)
 }
