@@ -23,21 +23,25 @@ pub struct Args {
     /// UTC at boot, RFC 3339 (default: 2026-06-21T08:00:00Z, sun about 35 deg high over the Bay of Biscay).
     #[arg(long)]
     pub start: Option<String>,
-    /// Latitude and longitude of the NED origin, deg.
+    /// Latitude of the NED origin, deg.
     #[arg(long, default_value_t = 44.0, allow_hyphen_values = true)]
     pub lat_deg: f64,
+    /// Longitude of the NED origin, deg.
     #[arg(long, default_value_t = -2.0, allow_hyphen_values = true)]
     pub lon_deg: f64,
-    /// Survey depth (m), forward speed (m/s), leg length and spacing (m), first leg heading (deg,
-    /// default 17.2).
+    /// Survey depth, m.
     #[arg(long, default_value_t = 10.0)]
     pub depth_m: f64,
+    /// Forward speed, m/s.
     #[arg(long, default_value_t = 1.0)]
     pub speed_mps: f64,
+    /// Lawnmower leg length, m.
     #[arg(long, default_value_t = 60.0)]
     pub leg_m: f64,
+    /// Spacing between legs, m.
     #[arg(long, default_value_t = 20.0)]
     pub spacing_m: f64,
+    /// Heading of the first leg, deg (default 17.2).
     #[arg(long, allow_hyphen_values = true)]
     pub heading_deg: Option<f64>,
     /// Water clarity: attenuation scale on clear water (1 = clear, 3 = coastal).
@@ -46,9 +50,10 @@ pub struct Args {
     /// IMU noise relative to the grade the firmware is tuned for (ICM-42688-P).
     #[arg(long, default_value_t = 1.0)]
     pub imu_noise_scale: f64,
-    /// Position fix (USBL-like) interval, s, and 1-sigma per axis, m.
+    /// Position fix (USBL-like) interval, s.
     #[arg(long, default_value_t = 5.0)]
     pub fix_period_s: f64,
+    /// Position fix 1-sigma per axis, m.
     #[arg(long, default_value_t = 2.0)]
     pub fix_sigma_m: f64,
     /// No position fixes (the horizontal position is then free-inertial).
