@@ -20,7 +20,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Factor-graph INS/DVL/USBL navigation with abnormal-observation handling (replay, simulate, Monte Carlo).
+    /// Factor-graph INS/DVL/USBL navigation with abnormal-observation handling: replay a log, simulate, Monte Carlo.
     Fgo(cli::fgo::Args),
     /// Decode telemetry (and defmt logs) from a file, a TCP socket or a serial port.
     Decode(cli::decode::Args),
@@ -32,7 +32,7 @@ enum Command {
     Filter(cli::filter::Args),
     /// Apparent solar zenith and azimuth for a time and place (the sensor head's ephemeris).
     Sun(cli::sun::Args),
-    /// Run the polarization compass on a simulated sky or a CSV of raw channel counts.
+    /// Polarization compass on a simulated sky (heading Monte Carlo, sun geolocation) or on a CSV of raw counts.
     Compass(cli::compass::Args),
     /// Record telemetry live (TCP, serial, or RTT with --features probe) to a lossless recording.
     Record(cli::record::Args),
@@ -48,11 +48,11 @@ enum Command {
     Lmnn(cli::lmnn::Args),
     /// Topological map from polarization images with AUKF-SLAM loop closures (simulated survey or recorded data).
     Map(cli::map::Args),
-    /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
-    /// Under-ice odometry (MSCKF: IMU, stereo, depth, imaging-sonar velocity): simulate/evaluate or run on a track file.
+    /// Under-ice odometry (MSCKF: IMU, stereo, depth, imaging-sonar velocity): simulate and evaluate, or run on a data directory.
     Ice(cli::ice::Args),
     /// Translation between two images by phase correlation with a sub-pixel (DFT-upsampled) peak.
     Phasecorr(cli::phasecorr::Args),
+    /// Flash a board's firmware through a debug probe (probe-rs) and optionally stay attached.
     #[cfg(feature = "probe")]
     Flash(cli::flash::Args),
     /// Attach to a running board through a debug probe: stream defmt (RTT) and telemetry.

@@ -14,7 +14,7 @@ fn simulate_then_run_on_exported_csv() {
     let dir = tempfile::tempdir().unwrap();
     let sim_dir = dir.path().join("sim");
     let st = subnav()
-        .args(["bathy", "--simulate", "--small", "--seeds", "1", "--export-csv", "--no-plots", "--format", "json", "--out"])
+        .args(["bathy", "simulate", "--small", "--seeds", "1", "--export-csv", "--no-plots", "--format", "json", "--out"])
         .arg(&sim_dir)
         .output()
         .unwrap();
@@ -28,7 +28,7 @@ fn simulate_then_run_on_exported_csv() {
     }
     let out = dir.path().join("csv");
     let st = subnav()
-        .args(["bathy", "--format", "json", "--soundings"])
+        .args(["bathy", "run", "--format", "json", "--soundings"])
         .arg(sim_dir.join("soundings.csv"))
         .arg("--nav")
         .arg(sim_dir.join("nav.csv"))
@@ -52,7 +52,17 @@ fn bad_csv_input_is_a_clear_error() {
     std::fs::write(&nav, "t_s,north_m,east_m,depth_m,heading_rad\n0,0,0,10,0\n1,NaN,0,10,0\n").unwrap();
     std::fs::write(&snd, "t_s,beam_angle_rad,range_m\n0,0,10\n").unwrap();
     let run = |n: &std::path::Path, s: &std::path::Path| {
-        subnav().arg("bathy").arg("--soundings").arg(s).arg("--nav").arg(n).arg("--out").arg(dir.path().join("o")).output().unwrap()
+        subnav()
+            .arg("bathy")
+            .arg("run")
+            .arg("--soundings")
+            .arg(s)
+            .arg("--nav")
+            .arg(n)
+            .arg("--out")
+            .arg(dir.path().join("o"))
+            .output()
+            .unwrap()
     };
     let o = run(&nav, &snd);
     assert!(!o.status.success());

@@ -24,7 +24,7 @@ fn report_on_a_simulated_dive_writes_valid_figures_and_pages() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rep");
     let o = Command::new(env!("CARGO_BIN_EXE_subnav"))
-        .args(["--format", "json", "report", "--simulate-dive", "7", "--duration-s", "90", "--images", "both", "--out"])
+        .args(["--format", "json", "report", "simulate", "--seed", "7", "--duration-s", "90", "--images", "both", "--out"])
         .arg(&out)
         .output()
         .unwrap();
@@ -59,7 +59,13 @@ fn report_without_anything_to_plot_says_why() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("empty.snrec");
     subnav_link::record::Writer::create(&rec, &subnav_link::record::Meta::new("test")).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_subnav")).arg("report").arg(&rec).arg("--out").arg(dir.path().join("r")).output().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_subnav"))
+        .args(["report", "recording"])
+        .arg(&rec)
+        .arg("--out")
+        .arg(dir.path().join("r"))
+        .output()
+        .unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("nothing to report"), "{}", String::from_utf8_lossy(&o.stderr));
 }

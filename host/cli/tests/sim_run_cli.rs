@@ -37,7 +37,15 @@ fn sim_then_native_run_records_telemetry_and_truth_and_reports_errors() {
     assert!(dec.status.success(), "{}", String::from_utf8_lossy(&dec.stderr));
     let nav_lines = String::from_utf8_lossy(&dec.stdout).lines().filter(|l| l.contains("\"Nav\"")).count();
     assert_eq!(nav_lines, 601);
-    let rep = subnav().arg("report").arg(&rec).arg("--truth").arg(&truth).arg("--out").arg(dir.path().join("rep")).output().unwrap();
+    let rep = subnav()
+        .args(["report", "recording"])
+        .arg(&rec)
+        .arg("--truth")
+        .arg(&truth)
+        .arg("--out")
+        .arg(dir.path().join("rep"))
+        .output()
+        .unwrap();
     assert!(rep.status.success(), "{}", String::from_utf8_lossy(&rep.stderr));
     assert!(dir.path().join("rep/report.md").exists());
 }
@@ -47,7 +55,8 @@ fn bad_scenarios_and_arguments_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
     let out = subnav().args(["sim", "--imu-stuck", "10,9", "--out"]).arg(dir.path().join("x.json")).output().unwrap();
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("axis must be 0..5"));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("--imu-stuck") && e.contains("the axis must be an integer 0..=5") && !e.contains("panicked"), "{e}");
     let junk = dir.path().join("junk.json");
     std::fs::write(&junk, "{\"x\": 1}").unwrap();
     let out = subnav().args(["run", "--native"]).arg(&junk).output().unwrap();

@@ -2,8 +2,8 @@
 //! seeded simulated surveys with evaluation against the truth.
 //!
 //! ```text
-//! subnav bathy --soundings soundings.csv --nav nav.csv --out DIR
-//! subnav bathy --simulate --seeds 0..20 --out DIR [--format json]
+//! subnav bathy run --soundings soundings.csv --nav nav.csv --out DIR
+//! subnav bathy simulate --seeds 0..20 --out DIR [--format json]
 //! ```
 //! CSV formats: see `bathy::io`. Outputs in DIR: `trajectory_corrected.csv`,
 //! `bathymetry_dead_reckoning.asc`, `bathymetry_corrected.asc` (ESRI ASCII grids, depth m),
@@ -11,6 +11,7 @@
 //! `nav_error.png`, `evaluation.json` (per seed and pooled).
 
 use super::Format;
+use super::args::{self, Seeds};
 use anyhow::{Context, Result, bail};
 use plotters::style::RGBColor;
 use std::path::{Path, PathBuf};
@@ -22,48 +23,55 @@ use subnav_bathy::{Survey, V2, io, plot};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
+    #[command(subcommand)]
+    pub command: Sub,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum Sub {
+    /// Graph SLAM on CSV soundings and navigation; writes the corrected trajectory and grids.
+    Run(RunArgs),
+    /// Seeded simulated surveys: graph SLAM evaluated against the truth (pooled statistics).
+    Simulate(SimulateArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
     /// Soundings CSV (t_s,beam_angle_rad,range_m).
-    #[arg(long, required_unless_present = "simulate", requires = "nav")]
-    pub soundings: Option<PathBuf>,
+    #[arg(long)]
+    pub soundings: PathBuf,
     /// Navigation CSV (t_s,north_m,east_m,depth_m,heading_rad[,vel_sigma_mps]).
-    #[arg(long, requires = "soundings")]
-    pub nav: Option<PathBuf>,
-    /// Run on simulated surveys instead of CSV input.
-    #[arg(long, conflicts_with_all = ["soundings", "nav"])]
-    pub simulate: bool,
-    /// Seeds for --simulate: `N` or `A..B` (B exclusive).
-    #[arg(long, default_value = "0..1")]
-    pub seeds: String,
+    #[arg(long)]
+    pub nav: PathBuf,
+    /// Output directory (created).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Survey altitude for submap/matching scales (default: estimated from near-nadir beams).
+    #[arg(long)]
+    pub altitude_m: Option<f64>,
+    /// Skip PNG figures.
+    #[arg(long)]
+    pub no_plots: bool,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// Seeds of the simulated surveys: `N`, `A..B` (B exclusive) or `A..=B`.
+    #[arg(long, default_value = "0", value_parser = args::parse_seeds)]
+    pub seeds: Seeds,
     /// Use the small (few-minute) survey instead of the one-hour survey.
     #[arg(long)]
     pub small: bool,
     /// Output directory (created).
     #[arg(long)]
     pub out: PathBuf,
-    /// Survey altitude for submap/matching scales; CSV input: estimated from near-nadir beams.
-    #[arg(long)]
-    pub altitude_m: Option<f64>,
     /// Skip PNG figures.
     #[arg(long)]
     pub no_plots: bool,
-    /// With --simulate: also write the first seed's survey as CSV (soundings.csv, nav.csv,
-    /// truth_nav.csv) to show the input format.
+    /// Also write the first seed's survey as CSV (soundings.csv, nav.csv, truth_nav.csv) to show
+    /// the input format of `bathy run`.
     #[arg(long)]
     pub export_csv: bool,
-}
-
-fn parse_seeds(s: &str) -> Result<std::ops::Range<u64>> {
-    if let Some((a, b)) = s.split_once("..") {
-        let a: u64 = a.trim().parse().with_context(|| format!("--seeds: bad start in '{s}'"))?;
-        let b: u64 = b.trim().parse().with_context(|| format!("--seeds: bad end in '{s}'"))?;
-        if b <= a {
-            bail!("--seeds: empty range '{s}'");
-        }
-        Ok(a..b)
-    } else {
-        let a: u64 = s.trim().parse().with_context(|| format!("--seeds: '{s}' is neither N nor A..B"))?;
-        Ok(a..a + 1)
-    }
 }
 
 /// Median of `range * cos(angle)` over beams within 15 deg of nadir.
@@ -150,43 +158,50 @@ fn pct(a: f64, b: f64) -> f64 {
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    if !args.simulate {
-        let (Some(s), Some(n)) = (&args.soundings, &args.nav) else { bail!("give --soundings and --nav, or --simulate") };
-        let survey = io::read_survey(s, n)?;
-        let alt = match args.altitude_m {
-            Some(a) => a,
-            None => estimate_altitude(&survey).context("cannot estimate the altitude (no near-nadir beams); pass --altitude-m")?,
-        };
-        if !(alt.is_finite() && alt > 0.0) {
-            bail!("altitude must be positive, got {alt}");
-        }
-        let cfg = PipelineConfig::for_altitude(alt);
-        let out = pipeline::run(&survey, &cfg)?;
-        write_outputs(&args.out, &survey, &out, &cfg, !args.no_plots, None)?;
-        let kept = out.attempts.iter().filter(|a| a.kept).count();
-        let max_off = out.offsets_spring.iter().map(|o| o.norm()).fold(0.0, f64::max);
-        match format {
-            Format::Json => println!(
-                "{}",
-                serde_json::json!({"pings": survey.pings.len(), "submaps": out.submaps.len(), "closures_attempted": out.attempts.len(),
-                    "closures_kept": kept, "max_correction_m": max_off, "timing": out.timing, "out": args.out})
-            ),
-            Format::Text => println!(
-                "{} pings, {} submaps, {} closures attempted, {} kept; largest correction {:.2} m; {:.2} s; outputs in {}",
-                survey.pings.len(),
-                out.submaps.len(),
-                out.attempts.len(),
-                kept,
-                max_off,
-                out.timing.total_s,
-                args.out.display()
-            ),
-        }
-        return Ok(ExitCode::SUCCESS);
+    match args.command {
+        Sub::Run(a) => run_csv(a, format),
+        Sub::Simulate(a) => simulate(a, format),
     }
+}
 
-    let seeds = parse_seeds(&args.seeds)?;
+fn run_csv(args: RunArgs, format: Format) -> Result<ExitCode> {
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let survey = io::read_survey(&args.soundings, &args.nav)?;
+    let alt = match args.altitude_m {
+        Some(a) => a,
+        None => estimate_altitude(&survey).context("cannot estimate the altitude (no near-nadir beams); pass --altitude-m")?,
+    };
+    if !(alt.is_finite() && alt > 0.0) {
+        bail!("altitude must be positive, got {alt}");
+    }
+    let cfg = PipelineConfig::for_altitude(alt);
+    let out = pipeline::run(&survey, &cfg)?;
+    write_outputs(&args.out, &survey, &out, &cfg, !args.no_plots, None)?;
+    let kept = out.attempts.iter().filter(|a| a.kept).count();
+    let max_off = out.offsets_spring.iter().map(|o| o.norm()).fold(0.0, f64::max);
+    match format {
+        Format::Json => println!(
+            "{}",
+            serde_json::json!({"pings": survey.pings.len(), "submaps": out.submaps.len(), "closures_attempted": out.attempts.len(),
+                "closures_kept": kept, "max_correction_m": max_off, "timing": out.timing, "out": args.out})
+        ),
+        Format::Text => println!(
+            "{} pings, {} submaps, {} closures attempted, {} kept; largest correction {:.2} m; {:.2} s; outputs in {}",
+            survey.pings.len(),
+            out.submaps.len(),
+            out.attempts.len(),
+            kept,
+            max_off,
+            out.timing.total_s,
+            args.out.display()
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let seeds = args.seeds.range();
     let mut evals: Vec<(u64, Evaluation)> = vec![];
     let mut pooled: [Vec<f32>; 4] = Default::default();
     for seed in seeds.clone() {

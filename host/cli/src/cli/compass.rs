@@ -1,12 +1,12 @@
 //! `subnav compass`: run the polarization compass (`subnav_core::compass`, the firmware's code)
 //! on a simulated sky (heading Monte Carlo, sun-track geolocation) or on a CSV of raw counts.
 //!
-//! CSV (`--csv FILE`): a header line, then one solve per row:
+//! CSV (`compass csv FILE`): a header line, then one solve per row:
 //! `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,u0_c1,u0_c2,u0_c3,u1_c0,...`
 //! `time` is POSIX microseconds or RFC 3339; empty lat/lon mean "position unknown" (the sun is
 //! still measured, the reason is `NoTime`). The units are the default head of the simulator
 //! (`host::compass::sim::default_units`: a ring of N = (columns - 6) / 4 units, nominal
-//! calibration). `--simulate --emit-csv FILE` writes such a file (with a `true_yaw_deg` column).
+//! calibration). `compass simulate --emit-csv FILE` writes such a file (with a `true_yaw_deg` column).
 
 use std::io::Write;
 use std::process::ExitCode;
@@ -25,40 +25,29 @@ use subnav_compass::{geoloc, montecarlo};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Heading Monte Carlo on the simulator.
-    #[arg(long, conflicts_with_all = ["csv", "geolocate"])]
-    pub simulate: bool,
-    /// Sun-track geolocation trials on the simulator.
-    #[arg(long, conflicts_with = "csv")]
-    pub geolocate: bool,
-    /// CSV of raw channel counts to run through the compass.
-    #[arg(long)]
-    pub csv: Option<std::path::PathBuf>,
-    /// Monte Carlo draws (--simulate).
-    #[arg(long, default_value_t = 1000)]
-    pub draws: usize,
-    /// Geolocation trials (--geolocate), each a simulated track.
-    #[arg(long, default_value_t = 50)]
-    pub trials: usize,
-    /// Track length (s) and sample interval (s) for --geolocate.
-    #[arg(long, default_value_t = 3600)]
-    pub track_s: i64,
-    #[arg(long, default_value_t = 60)]
-    pub interval_s: i64,
-    /// Heading knowledge 1-sigma (deg) used by --geolocate to turn relative azimuths into azimuths.
-    #[arg(long, default_value_t = 0.5)]
-    pub heading_sigma_deg: f64,
-    /// With --geolocate: trust the heading (do not fit a constant azimuth offset).
-    #[arg(long)]
-    pub known_heading: bool,
+    #[command(subcommand)]
+    pub command: Sub,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum Sub {
+    /// Heading Monte Carlo on the simulated sky.
+    Simulate(SimulateArgs),
+    /// Sun-track geolocation trials on the simulated sky.
+    Geolocate(GeolocateArgs),
+    /// Run the compass on a CSV of raw channel counts, one solve per row.
+    Csv {
+        /// The CSV (header, then `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,...`).
+        file: std::path::PathBuf,
+    },
+}
+
+/// The simulated sensor head and water (both simulator modes).
+#[derive(Debug, clap::Args)]
+pub struct Sky {
     /// Sensor depth (m).
     #[arg(long, default_value_t = 10.0)]
     pub depth_m: f64,
-    /// Sun apparent elevation band (deg) for --simulate.
-    #[arg(long, default_value_t = 20.0)]
-    pub min_elevation_deg: f64,
-    #[arg(long, default_value_t = 70.0)]
-    pub max_elevation_deg: f64,
     /// Polarization units in the simulated head.
     #[arg(long, default_value_t = 8)]
     pub units: usize,
@@ -71,41 +60,82 @@ pub struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// With --simulate: also write the simulated raw counts as a CSV usable with --csv.
-    #[arg(long, requires = "simulate")]
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// Monte Carlo draws.
+    #[arg(long, default_value_t = 1000)]
+    pub draws: usize,
+    /// Lower edge of the sun's apparent elevation band (deg).
+    #[arg(long, default_value_t = 20.0)]
+    pub min_elevation_deg: f64,
+    /// Upper edge of the sun's apparent elevation band (deg).
+    #[arg(long, default_value_t = 70.0)]
+    pub max_elevation_deg: f64,
+    /// Also write the simulated raw counts as a CSV usable with `compass csv`.
+    #[arg(long)]
     pub emit_csv: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub sky: Sky,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct GeolocateArgs {
+    /// Geolocation trials, each a simulated track.
+    #[arg(long, default_value_t = 50)]
+    pub trials: usize,
+    /// Track length (s).
+    #[arg(long, default_value_t = 3600)]
+    pub track_s: i64,
+    /// Sample interval along the track (s).
+    #[arg(long, default_value_t = 60)]
+    pub interval_s: i64,
+    /// Heading knowledge 1-sigma (deg) used to turn relative azimuths into azimuths.
+    #[arg(long, default_value_t = 0.5)]
+    pub heading_sigma_deg: f64,
+    /// Trust the heading (do not fit a constant azimuth offset).
+    #[arg(long)]
+    pub known_heading: bool,
+    #[command(flatten)]
+    pub sky: Sky,
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    if args.units < 3 || args.units > compass::MAX_UNITS {
-        bail!("--units must be within 3..={}", compass::MAX_UNITS);
-    }
-    if args.simulate {
-        simulate(&args, format)
-    } else if args.geolocate {
-        geolocate(&args, format)
-    } else if let Some(path) = &args.csv {
-        from_csv(path, format)
-    } else {
-        bail!("give one of --simulate, --geolocate or --csv FILE")
+    let check = |sky: &Sky| {
+        if sky.units < 3 || sky.units > compass::MAX_UNITS {
+            bail!("--units must be within 3..={}", compass::MAX_UNITS);
+        }
+        Ok(())
+    };
+    match args.command {
+        Sub::Simulate(a) => {
+            check(&a.sky)?;
+            simulate(&a, format)
+        }
+        Sub::Geolocate(a) => {
+            check(&a.sky)?;
+            geolocate(&a, format)
+        }
+        Sub::Csv { file } => from_csv(&file, format),
     }
 }
 
-fn water(args: &Args) -> sim::Water {
+fn water(sky: &Sky) -> sim::Water {
     let flat = sim::Water::clear();
-    if args.slope_rms > 0.0 { sim::Water { slope_rms: args.slope_rms, facets: 16, ..flat } } else { flat }
+    if sky.slope_rms > 0.0 { sim::Water { slope_rms: sky.slope_rms, facets: 16, ..flat } } else { flat }
 }
 
-fn simulate(args: &Args, format: Format) -> Result<ExitCode> {
+fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
     let cfg = montecarlo::McConfig {
         draws: args.draws,
-        depth_m: args.depth_m,
+        depth_m: args.sky.depth_m,
         min_elevation_deg: args.min_elevation_deg,
         max_elevation_deg: args.max_elevation_deg,
-        units: args.units,
-        tilt_sigma_rad: args.tilt_sigma_deg.to_radians(),
-        water: water(args),
-        seed: args.seed,
+        units: args.sky.units,
+        tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
+        water: water(&args.sky),
+        seed: args.sky.seed,
         ..montecarlo::McConfig::default()
     };
     if let Some(path) = &args.emit_csv {
@@ -147,18 +177,18 @@ fn simulate(args: &Args, format: Format) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn geolocate(args: &Args, format: Format) -> Result<ExitCode> {
+fn geolocate(args: &GeolocateArgs, format: Format) -> Result<ExitCode> {
     let cfg = geoloc::GeoConfig {
         trials: args.trials,
         duration_s: args.track_s,
         interval_s: args.interval_s.max(1),
-        depth_m: args.depth_m,
-        units: args.units,
-        tilt_sigma_rad: args.tilt_sigma_deg.to_radians(),
+        depth_m: args.sky.depth_m,
+        units: args.sky.units,
+        tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
         heading_sigma_rad: args.heading_sigma_deg.to_radians(),
         fit_azimuth_offset: !args.known_heading,
-        water: water(args),
-        seed: args.seed,
+        water: water(&args.sky),
+        seed: args.sky.seed,
         ..geoloc::GeoConfig::default()
     };
     let r = geoloc::run(&cfg);

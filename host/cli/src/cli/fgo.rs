@@ -1,12 +1,12 @@
 //! `subnav fgo`: factor-graph INS/DVL/USBL navigation (`subnav_fgo`, spec 002).
 //!
-//! - `subnav fgo --input LOG --out OUT [--no-gating] [--realtime]`: process a JSON-lines sensor
+//! - `subnav fgo replay --input LOG --out OUT [--no-gating] [--realtime]`: process a JSON-lines sensor
 //!   log (format in `subnav_fgo::log`); writes the batch-optimised nodes (or the real-time
 //!   smoother's outputs with `--realtime`) as CSV, or JSON lines when OUT ends in `.json`/`.jsonl`.
 //!   Columns: ENU position/velocity, body(FLU)->ENU quaternion, biases, and the NED/FRD position
 //!   and attitude of the project convention. `--decisions FILE` writes every gating decision.
 //! - `subnav fgo simulate --out LOG`: a simulated mission log (and `--truth CSV`).
-//! - `subnav fgo monte-carlo --runs 100`: gated vs ungated vs the shared-UKF filter, latency.
+//! - `subnav fgo monte-carlo --seeds 1..=100`: gated vs ungated vs the shared-UKF filter, latency.
 
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Write};
@@ -17,6 +17,7 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::Format;
+use super::args::{self, Seeds};
 use subnav_fgo::gating::{GatingConfig, Sensor};
 use subnav_fgo::log::SensorLog;
 use subnav_fgo::montecarlo;
@@ -25,65 +26,73 @@ use subnav_fgo::smoother::{self, Estimate, SmootherConfig};
 use subnav_fgo::state::{attitude_ned_frd_wxyz, enu_to_ned};
 
 #[derive(Debug, clap::Args)]
-#[command(args_conflicts_with_subcommands = true)]
 pub struct Args {
     #[command(subcommand)]
-    pub command: Option<Sub>,
-    /// Sensor log (JSON lines).
-    #[arg(long)]
-    pub input: Option<PathBuf>,
-    /// Output: `.json`/`.jsonl` gives JSON lines, anything else CSV.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// Disable the abnormal-observation test (every observation keeps its covariance).
-    #[arg(long)]
-    pub no_gating: bool,
-    /// Write the real-time (fixed-lag) outputs instead of the batch-optimised nodes.
-    #[arg(long)]
-    pub realtime: bool,
-    /// Fixed-lag window of the real-time smoother, seconds.
-    #[arg(long, default_value_t = 6.0)]
-    pub lag_s: f64,
-    /// Confidence of the chi-square gate.
-    #[arg(long, default_value_t = 0.99)]
-    pub confidence: f64,
-    /// Write every gating decision (JSON lines).
-    #[arg(long)]
-    pub decisions: Option<PathBuf>,
-    /// No progress bar.
-    #[arg(long)]
-    pub quiet: bool,
+    pub command: Sub,
 }
 
 #[derive(Debug, clap::Subcommand)]
 pub enum Sub {
+    /// Process a JSON-lines sensor log; write the estimates (CSV, or JSON lines for .json/.jsonl).
+    Replay {
+        /// Sensor log (JSON lines).
+        #[arg(long)]
+        input: PathBuf,
+        /// Output: `.json`/`.jsonl` gives JSON lines, anything else CSV.
+        #[arg(long)]
+        out: PathBuf,
+        /// Disable the abnormal-observation test (every observation keeps its covariance).
+        #[arg(long)]
+        no_gating: bool,
+        /// Write the real-time (fixed-lag) outputs instead of the batch-optimised nodes.
+        #[arg(long)]
+        realtime: bool,
+        /// Fixed-lag window of the real-time smoother, seconds.
+        #[arg(long, default_value_t = 6.0)]
+        lag_s: f64,
+        /// Confidence of the chi-square gate.
+        #[arg(long, default_value_t = 0.99)]
+        confidence: f64,
+        /// Write every gating decision (JSON lines).
+        #[arg(long)]
+        decisions: Option<PathBuf>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Write a simulated AUV mission as a sensor log.
     Simulate {
+        /// Output sensor log (JSON lines).
         #[arg(long)]
         out: PathBuf,
         /// Truth CSV at IMU rate (t_s, east, north, up).
         #[arg(long)]
         truth: Option<PathBuf>,
+        /// Seed of the simulated mission.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Mission length, s.
         #[arg(long, default_value_t = 600.0)]
         duration_s: f64,
+        /// Fraction of DVL/USBL observations made abnormal.
         #[arg(long, default_value_t = 0.1)]
         abnormal_fraction: f64,
     },
     /// Seeded Monte Carlo: gated vs ungated graph vs shared-UKF filter; smoother latency.
     MonteCarlo {
-        #[arg(long, default_value_t = 100)]
-        runs: usize,
-        #[arg(long, default_value_t = 1)]
-        first_seed: u64,
+        /// Seeds of the simulated missions: `N`, `A..B` (B exclusive) or `A..=B`.
+        #[arg(long, default_value = "1..=100", value_parser = args::parse_seeds)]
+        seeds: Seeds,
+        /// Mission length, s.
         #[arg(long, default_value_t = 300.0)]
         duration_s: f64,
+        /// Fraction of DVL/USBL observations made abnormal.
         #[arg(long, default_value_t = 0.1)]
         abnormal_fraction: f64,
         /// Full results (per run) as JSON.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// No progress bar.
         #[arg(long)]
         quiet: bool,
     },
@@ -169,8 +178,8 @@ fn write_estimates(path: &Path, est: &[Estimate]) -> Result<()> {
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match args.command {
-        Some(Sub::Simulate { out, truth, seed, duration_s, abnormal_fraction }) => {
-            if !(duration_s > 10.0 && duration_s.is_finite()) || !(0.0..1.0).contains(&abnormal_fraction) {
+        Sub::Simulate { out, truth, seed, duration_s, abnormal_fraction } => {
+            if !(duration_s > 10.0 && duration_s.is_finite() && (0.0..1.0).contains(&abnormal_fraction)) {
                 bail!("--duration-s must be > 10 and --abnormal-fraction in [0, 1)");
             }
             let sim = simulate(&SimConfig { seed, duration_s, abnormal_fraction, ..Default::default() });
@@ -191,9 +200,10 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Some(Sub::MonteCarlo { runs, first_seed, duration_s, abnormal_fraction, out, quiet }) => {
-            if runs == 0 || !(duration_s > 10.0 && duration_s.is_finite()) || !(0.0..1.0).contains(&abnormal_fraction) {
-                bail!("--runs must be > 0, --duration-s > 10 and --abnormal-fraction in [0, 1)");
+        Sub::MonteCarlo { seeds, duration_s, abnormal_fraction, out, quiet } => {
+            let (runs, first_seed) = (usize::try_from(seeds.count)?, seeds.first);
+            if !(duration_s > 10.0 && duration_s.is_finite() && (0.0..1.0).contains(&abnormal_fraction)) {
+                bail!("--duration-s must be > 10 and --abnormal-fraction in [0, 1)");
             }
             let pb = bar(runs as u64, quiet, "monte carlo");
             let base = SimConfig { duration_s, abnormal_fraction, ..Default::default() };
@@ -246,22 +256,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        None => {
-            let (Some(input), Some(out)) = (args.input, args.out) else {
-                bail!("give --input LOG and --out FILE (or a subcommand: simulate, monte-carlo)");
-            };
+        Sub::Replay { input, out, no_gating, realtime, lag_s, confidence, decisions, quiet } => {
             let f = File::open(&input).with_context(|| format!("cannot open {}", input.display()))?;
             let log = SensorLog::read(BufReader::new(f)).with_context(|| format!("reading {}", input.display()))?;
-            let cfg = SmootherConfig {
-                lag_s: args.lag_s,
-                gating: GatingConfig { enabled: !args.no_gating, confidence: args.confidence },
-                ..Default::default()
-            };
-            let pb = bar((log.dvl.len() + log.usbl.len()) as u64, args.quiet, "smoothing");
-            let res = smoother::run(&log, cfg, !args.realtime, |i, _| pb.set_position(i as u64))?;
+            let cfg = SmootherConfig { lag_s, gating: GatingConfig { enabled: !no_gating, confidence }, ..Default::default() };
+            let pb = bar((log.dvl.len() + log.usbl.len()) as u64, quiet, "smoothing");
+            let res = smoother::run(&log, cfg, !realtime, |i, _| pb.set_position(i as u64))?;
             pb.finish_and_clear();
-            write_estimates(&out, if args.realtime { &res.realtime } else { &res.batch })?;
-            if let Some(d) = args.decisions {
+            write_estimates(&out, if realtime { &res.realtime } else { &res.batch })?;
+            if let Some(d) = decisions {
                 let mut w = BufWriter::new(File::create(&d).with_context(|| format!("cannot create {}", d.display()))?);
                 for x in &res.gate_log.decisions {
                     serde_json::to_writer(&mut w, x)?;
@@ -274,7 +277,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 "nodes": res.batch.len(), "realtime_outputs": res.realtime.len(),
                 "dvl_normal": lg.count(Sensor::Dvl, false), "dvl_abnormal": lg.count(Sensor::Dvl, true),
                 "usbl_normal": lg.count(Sensor::Usbl, false), "usbl_abnormal": lg.count(Sensor::Usbl, true),
-                "dropped_too_old": lg.dropped_too_old, "gating": !args.no_gating,
+                "dropped_too_old": lg.dropped_too_old, "gating": !no_gating,
                 "batch_iterations": res.batch_report.map(|r| r.iterations),
             });
             match format {

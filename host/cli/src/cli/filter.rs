@@ -2,7 +2,7 @@
 //!
 //! - `simulate`: write a simulated dive as a CSV sensor log (and its truth).
 //! - `replay`: run a CSV sensor log through the filter, write estimates (CSV or JSON lines).
-//! - `montecarlo`: AUKF vs plain UKF over seeded simulated dives (docs/PERFORMANCE.md).
+//! - `monte-carlo`: AUKF vs plain UKF over seeded simulated dives (docs/PERFORMANCE.md).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -11,6 +11,7 @@ use anyhow::{Context, Result};
 use subnav_core::nav::NavConfig;
 
 use super::Format;
+use super::args::{self, Seeds};
 use subnav_sil::filter::{montecarlo, replay, sim};
 
 #[derive(Debug, clap::Args)]
@@ -29,8 +30,10 @@ pub enum Sub {
         /// Truth output (CSV: t_s,n_m,e_m,d_m,yaw_rad).
         #[arg(long)]
         truth: Option<PathBuf>,
+        /// Seed of the simulated dive.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Dive length, s.
         #[arg(long, default_value_t = 600.0)]
         duration_s: f64,
     },
@@ -49,13 +52,14 @@ pub enum Sub {
         every_s: f64,
     },
     /// AUKF vs plain UKF over seeded simulated dives.
-    Montecarlo {
-        #[arg(long, default_value_t = 500)]
-        runs: u64,
-        #[arg(long, default_value_t = 0)]
-        first_seed: u64,
+    MonteCarlo {
+        /// Seeds of the simulated dives: `N`, `A..B` (B exclusive) or `A..=B`.
+        #[arg(long, default_value = "0..500", value_parser = args::parse_seeds)]
+        seeds: Seeds,
+        /// Worker threads.
         #[arg(long, default_value_t = 2)]
         threads: usize,
+        /// Dive length, s.
         #[arg(long, default_value_t = 600.0)]
         duration_s: f64,
         /// AUKF without the fading factor (Sage-Husa R only).
@@ -124,7 +128,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Sub::Montecarlo { runs, first_seed, threads, duration_s, no_fading, b } => {
+        Sub::MonteCarlo { seeds, threads, duration_s, no_fading, b } => {
+            let (runs, first_seed) = (seeds.count, seeds.first);
             let cfg = sim::DiveConfig { duration_s, ..sim::DiveConfig::default() };
             let started = std::time::Instant::now();
             let mut aukf = NavConfig::default().adaptive();

@@ -1,6 +1,6 @@
-//! `subnav ice`: the under-ice odometry (`ice`). Either seeded simulated runs with evaluation
-//! (`--simulate --runs N [--ablations]`), or a recorded/written data directory
-//! (`--input DIR --out DIR`, format in `ice::data`).
+//! `subnav ice`: the under-ice odometry (`subnav_ice`). Either seeded simulated runs with
+//! evaluation (`ice simulate --seeds 1..=10 [--ablations]`), or a recorded/written data
+//! directory (`ice run --input DIR --out DIR`, format in `subnav_ice::data`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -12,6 +12,7 @@ use nalgebra::UnitQuaternion;
 use serde_json::json;
 
 use super::Format;
+use super::args::{self, Seeds};
 use subnav_ice::data::Dataset;
 use subnav_ice::eval::evaluate;
 use subnav_ice::frontend::TrackerConfig;
@@ -22,20 +23,58 @@ use subnav_ice::sonar;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Simulate under-ice runs and evaluate them against the truth.
-    #[arg(long, conflicts_with = "input")]
-    pub simulate: bool,
+    #[command(subcommand)]
+    pub command: Sub,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum Sub {
+    /// Run the odometry on a data directory (imu.csv, tracks.csv or stereo images, depth.csv, ...).
+    Run(RunArgs),
+    /// Seeded simulated under-ice runs evaluated against the truth (drift, ATE, RPE, NEES).
+    Simulate(SimulateArgs),
+}
+
+/// Switches of the odometry and its front end (both modes).
+#[derive(Debug, clap::Args)]
+pub struct Tuning {
+    /// Odometry: do not use the imaging-sonar velocity.
+    #[arg(long)]
+    pub no_sonar: bool,
+    /// Odometry: do not use the depth sensor.
+    #[arg(long)]
+    pub no_depth: bool,
+    /// Odometry: no adaptive measurement noise.
+    #[arg(long)]
+    pub no_adaptive: bool,
+    /// Front end: skip the dark-channel dehazing.
+    #[arg(long)]
+    pub no_dehaze: bool,
+    /// Front end: do not undo the flat-port refraction (treat the image as a pinhole in water).
+    #[arg(long)]
+    pub no_refraction: bool,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
     /// Data directory to run on (imu.csv, tracks.csv, depth.csv, ...; see `ice::data`).
     #[arg(long)]
-    pub input: Option<PathBuf>,
-    /// Output directory: trajectory.csv and metrics.json (input mode), results.json (simulate).
+    pub input: PathBuf,
+    /// Output directory: trajectory.csv and metrics.json.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Number of seeded runs (seeds `seed`, `seed + 1`, ...).
-    #[arg(long, default_value_t = 1)]
-    pub runs: u64,
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
+    #[command(flatten)]
+    pub tuning: Tuning,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// Seeds of the runs: `N`, `A..B` (B exclusive) or `A..=B`.
+    #[arg(long, default_value = "1", value_parser = args::parse_seeds)]
+    pub seeds: Seeds,
+    /// Output directory for results.json.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Path length of each simulated run, m.
     #[arg(long, default_value_t = 500.0)]
     pub distance_m: f64,
@@ -43,46 +82,105 @@ pub struct Args {
     /// only, IMU only).
     #[arg(long)]
     pub ablations: bool,
-    /// Write the (first) simulated data set to this directory (then usable with --input).
+    /// Write the first seed's simulated data set to this directory (then usable with `ice run --input`).
     #[arg(long)]
     pub write: Option<PathBuf>,
-    #[arg(long)]
-    pub no_sonar: bool,
-    #[arg(long)]
-    pub no_depth: bool,
-    #[arg(long)]
-    pub no_adaptive: bool,
-    /// Simulated runs: stereo observations from rendered images through the FAST + KLT front end
-    /// (slower: about 0.1 s per frame) instead of synthetic feature tracks. With --write, the
-    /// images are written (stereo/*.png + stereo.csv) instead of tracks.csv.
+    /// Stereo observations from rendered images through the FAST + KLT front end (slower: about
+    /// 0.1 s per frame) instead of synthetic feature tracks. With --write, the images are written
+    /// (stereo/*.png + stereo.csv) instead of tracks.csv.
     #[arg(long)]
     pub images: bool,
-    /// Simulated runs: the camera sees nothing (turbid water) for this many seconds, starting at
+    /// The camera sees nothing (turbid water) for this many seconds, starting at
     /// --outage-start-s (so the sonar and depth carry the odometry).
     #[arg(long, default_value_t = 0.0)]
     pub outage_s: f64,
+    /// Start of the vision outage, s.
     #[arg(long, default_value_t = 100.0)]
     pub outage_start_s: f64,
-    /// Front end: skip the dark-channel dehazing.
-    #[arg(long)]
-    pub no_dehaze: bool,
-    /// Front end: do not undo the flat-port refraction (treat the image as a pinhole in water).
-    #[arg(long)]
-    pub no_refraction: bool,
+    #[command(flatten)]
+    pub tuning: Tuning,
+    /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
 }
 
-pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    let mut base = OdometryConfig::default();
-    base.use_sonar &= !args.no_sonar;
-    base.use_depth &= !args.no_depth;
-    base.adaptive &= !args.no_adaptive;
-    let mut tracker = TrackerConfig::default();
-    if args.no_dehaze {
-        tracker.dehaze = None;
+impl Tuning {
+    fn configs(&self) -> (OdometryConfig, TrackerConfig) {
+        let mut base = OdometryConfig::default();
+        base.use_sonar &= !self.no_sonar;
+        base.use_depth &= !self.no_depth;
+        base.adaptive &= !self.no_adaptive;
+        let mut tracker = TrackerConfig::default();
+        if self.no_dehaze {
+            tracker.dehaze = None;
+        }
+        tracker.refraction &= !self.no_refraction;
+        (base, tracker)
     }
-    tracker.refraction &= !args.no_refraction;
+}
+
+pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    match args.command {
+        Sub::Run(a) => run_dir(a, format),
+        Sub::Simulate(a) => simulate_runs(a, format),
+    }
+}
+
+fn run_dir(args: RunArgs, format: Format) -> Result<ExitCode> {
+    let (base, tracker) = args.tuning.configs();
+    let dir = &args.input;
+    let mut data = Dataset::read_dir(dir)?;
+    data.track_images(tracker)?;
+    let (est, stats) = odometry::run(&data, &base, &data.cam)?;
+    let metrics = (!data.truth.is_empty()).then(|| evaluate(&est, &data.truth, &RPE_LENGTHS_M));
+    if let Some(out) = &args.out {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let mut s = String::from("t_s,qw,qx,qy,qz,x,y,z,sigma_x,sigma_y,sigma_z\n");
+        for e in &est {
+            let q = UnitQuaternion::from_matrix(&e.rot);
+            let p = e.pos_w_m;
+            let sd = |i: usize| e.cov[(3 + i, 3 + i)].max(0.0).sqrt();
+            let _ = writeln!(s, "{:.6},{},{},{},{},{},{},{},{},{},{}", e.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, sd(0), sd(1), sd(2));
+        }
+        std::fs::write(out.join("trajectory.csv"), s)?;
+        std::fs::write(
+            out.join("metrics.json"),
+            serde_json::to_string_pretty(&json!({"stats": stats, "frontend": data.frontend, "metrics": metrics}))?,
+        )?;
+    }
+    match format {
+        Format::Json => println!("{}", json!({"poses": est.len(), "stats": stats, "frontend": data.frontend, "metrics": metrics})),
+        Format::Text => {
+            println!(
+                "{} poses; {} features used, {} gated; depth {} used; sonar {} used",
+                est.len(),
+                stats.features_used,
+                stats.features_gated,
+                stats.depth_used,
+                stats.sonar_used
+            );
+            if let Some(f) = &data.frontend {
+                println!(
+                    "front end: {} frames, {:.1} observations per frame, {} features started, {} lost",
+                    f.frames,
+                    f.observations as f64 / f.frames.max(1) as f64,
+                    f.started,
+                    f.lost
+                );
+            }
+            if let Some(m) = metrics {
+                println!(
+                    "drift {:.3} % of {:.1} m, ATE {:.3} m / {:.3} deg, NEES ori {:.2} pos {:.2}",
+                    m.drift_pct, m.distance_m, m.ate_pos_m, m.ate_ori_deg, m.nees_ori, m.nees_pos
+                );
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn simulate_runs(args: SimulateArgs, format: Format) -> Result<ExitCode> {
+    let (base, tracker) = args.tuning.configs();
     let outage = (args.outage_s > 0.0).then_some((args.outage_start_s, args.outage_s));
     let sim_at = |seed: u64| SimConfig {
         seed,
@@ -92,68 +190,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         vision_outage: outage,
         ..SimConfig::default()
     };
-    if let Some(dir) = &args.input {
-        let mut data = Dataset::read_dir(dir)?;
-        data.track_images(tracker)?;
-        let (est, stats) = odometry::run(&data, &base, &data.cam)?;
-        let metrics = (!data.truth.is_empty()).then(|| evaluate(&est, &data.truth, &RPE_LENGTHS_M));
-        if let Some(out) = &args.out {
-            std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-            let mut s = String::from("t_s,qw,qx,qy,qz,x,y,z,sigma_x,sigma_y,sigma_z\n");
-            for e in &est {
-                let q = UnitQuaternion::from_matrix(&e.rot);
-                let p = e.pos_w_m;
-                let sd = |i: usize| e.cov[(3 + i, 3 + i)].max(0.0).sqrt();
-                let _ = writeln!(s, "{:.6},{},{},{},{},{},{},{},{},{},{}", e.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, sd(0), sd(1), sd(2));
-            }
-            std::fs::write(out.join("trajectory.csv"), s)?;
-            std::fs::write(
-                out.join("metrics.json"),
-                serde_json::to_string_pretty(&json!({"stats": stats, "frontend": data.frontend, "metrics": metrics}))?,
-            )?;
-        }
-        match format {
-            Format::Json => println!("{}", json!({"poses": est.len(), "stats": stats, "frontend": data.frontend, "metrics": metrics})),
-            Format::Text => {
-                println!(
-                    "{} poses; {} features used, {} gated; depth {} used; sonar {} used",
-                    est.len(),
-                    stats.features_used,
-                    stats.features_gated,
-                    stats.depth_used,
-                    stats.sonar_used
-                );
-                if let Some(f) = &data.frontend {
-                    println!(
-                        "front end: {} frames, {:.1} observations per frame, {} features started, {} lost",
-                        f.frames,
-                        f.observations as f64 / f.frames.max(1) as f64,
-                        f.started,
-                        f.lost
-                    );
-                }
-                if let Some(m) = metrics {
-                    println!(
-                        "drift {:.3} % of {:.1} m, ATE {:.3} m / {:.3} deg, NEES ori {:.2} pos {:.2}",
-                        m.drift_pct, m.distance_m, m.ate_pos_m, m.ate_ori_deg, m.nees_ori, m.nees_pos
-                    );
-                }
-            }
-        }
-        return Ok(ExitCode::SUCCESS);
-    }
-    if !args.simulate {
-        bail!("give --simulate or --input DIR");
-    }
-    if args.runs == 0 || args.distance_m.is_nan() || args.distance_m <= 0.0 {
-        bail!("--runs must be >= 1 and --distance-m > 0");
+    if args.distance_m.is_nan() || args.distance_m <= 0.0 {
+        bail!("--distance-m must be > 0");
     }
     if !(args.outage_s >= 0.0 && args.outage_start_s.is_finite()) {
         bail!("--outage-s must be >= 0 and --outage-start-s finite");
     }
     let variants: Vec<Variant> = if args.ablations { Variant::ALL.to_vec() } else { vec![Variant::Full] };
     if let Some(dir) = &args.write {
-        let sim = sim_at(args.seed);
+        let sim = sim_at(args.seeds.first);
         let mut data = simulate(&SimConfig { images: false, ..sim });
         data.sonar_velocity = sonar::velocities(&data.sonar_frames, &base.sonar);
         if args.images {
@@ -164,13 +209,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         }
         data.write_dir(dir)?;
     }
-    let pb = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(args.runs) };
+    let pb = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(args.seeds.count) };
     if let Ok(style) = ProgressStyle::with_template("ice runs [{bar:40}] {pos}/{len} ({eta})") {
         pb.set_style(style.progress_chars("=> "));
     }
     let mut all: Vec<RunResult> = Vec::new();
-    for i in 0..args.runs {
-        all.extend(run_seed(&sim_at(args.seed + i), &base, &variants)?);
+    for seed in args.seeds.range() {
+        all.extend(run_seed(&sim_at(seed), &base, &variants)?);
         pb.inc(1);
     }
     pb.finish_and_clear();
@@ -202,7 +247,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         Format::Text => {
             let source = if args.images { "rendered stereo images, FAST + KLT front end" } else { "synthetic feature tracks" };
             let outage = outage.map_or(String::new(), |(a, d)| format!(", vision outage {d:.0} s from {a:.0} s"));
-            println!("{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs)", args.runs, args.distance_m);
+            println!("{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs)", args.seeds.count, args.distance_m);
             println!(
                 "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                 "variant", "drift %", "ATE m", "ATE deg", "RPE50 m", "RPE100 m", "NEES ori", "NEES pos"

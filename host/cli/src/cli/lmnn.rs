@@ -46,8 +46,10 @@ pub enum Sub {
     },
     /// kNN accuracy of a saved model on a labelled CSV.
     Eval {
+        /// Model (JSON, from `lmnn fit`).
         #[arg(long)]
         model: PathBuf,
+        /// Test samples (CSV: features..., integer label).
         #[arg(long)]
         test: PathBuf,
     },

@@ -34,8 +34,10 @@ pub struct Args {
 pub enum Sub {
     /// Simulated survey with revisits: build the map, report recognition and drift figures.
     Simulate {
+        /// Laps of the racetrack survey (the second and later laps revisit the first).
         #[arg(long, default_value_t = 3.0)]
         laps: f64,
+        /// Seed of the simulated survey.
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Appearance-only association (no Mahalanobis position gate), for comparison.
@@ -47,6 +49,7 @@ pub enum Sub {
         /// Also write every frame's mosaic (`<t_us>.png`) and `nav.csv` here.
         #[arg(long)]
         images: Option<PathBuf>,
+        /// No progress bar.
         #[arg(long)]
         quiet: bool,
     },
@@ -58,11 +61,13 @@ pub enum Sub {
         /// Directory of mosaics named `<t_us>.png`.
         #[arg(long)]
         images: PathBuf,
+        /// Output directory for the map, plot and fixes.
         #[arg(long)]
         out_dir: Option<PathBuf>,
         /// LMNN training time (s after the first image); default: half of the images' span.
         #[arg(long)]
         train_after_s: Option<f64>,
+        /// No progress bar.
         #[arg(long)]
         quiet: bool,
     },

@@ -1,6 +1,8 @@
 //! Subcommands of the `subnav` binary: one module each, with clap `Args` and
-//! `run(args, format) -> anyhow::Result<ExitCode>`.
+//! `run(args, format) -> anyhow::Result<ExitCode>`. A subcommand with several modes has one
+//! nested subcommand per mode; `args` holds the value parsers they share (seeds, fault windows).
 
+pub mod args;
 #[cfg(feature = "probe")]
 pub mod attach;
 pub mod bathy;

@@ -13,16 +13,36 @@ use subnav_report::{self as report, ImageFormat, ReportData};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The recording (from `subnav record` or `subnav qemu --record`).
-    #[arg(required_unless_present = "simulate_dive")]
-    pub recording: Option<PathBuf>,
-    /// Instead of a recording: simulate a dive with this seed (the host dive simulator through
-    /// the shared navigation filter), write it to OUT/dive.snrec, and report on it with its truth.
-    #[arg(long, conflicts_with = "recording")]
-    pub simulate_dive: Option<u64>,
-    /// With --simulate-dive: dive length, s.
-    #[arg(long, default_value_t = 300.0)]
-    pub duration_s: f64,
+    #[command(subcommand)]
+    pub command: Sub,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum Sub {
+    /// Report on a recording (from `subnav record`, `subnav qemu --record` or `subnav run --record`).
+    Recording {
+        /// The recording (.snrec).
+        recording: PathBuf,
+        #[command(flatten)]
+        page: Page,
+    },
+    /// Simulate a dive (the host dive simulator through the shared navigation filter), write it
+    /// to OUT/dive.snrec, and report on it with its truth.
+    Simulate {
+        /// Seed of the simulated dive.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Dive length, s.
+        #[arg(long, default_value_t = 300.0)]
+        duration_s: f64,
+        #[command(flatten)]
+        page: Page,
+    },
+}
+
+/// Where the report goes and what it is drawn against (both modes).
+#[derive(clap::Args, Debug)]
+pub struct Page {
     /// Output directory for the figures, report.md and report.html.
     #[arg(long, short)]
     pub out: PathBuf,
@@ -42,13 +62,13 @@ pub struct Args {
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    let recording = match (&args.recording, args.simulate_dive) {
-        (Some(r), _) => r.clone(),
-        (None, Some(seed)) => {
-            std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-            let p = args.out.join("dive.snrec");
+    let (recording, args) = match args.command {
+        Sub::Recording { recording, page } => (recording, page),
+        Sub::Simulate { seed, duration_s, page } => {
+            std::fs::create_dir_all(&page.out).with_context(|| format!("creating {}", page.out.display()))?;
+            let p = page.out.join("dive.snrec");
             let bar = super::record::progress_bar(0, "simulating the dive");
-            let opt = report::dive::DiveOptions { seed, duration_s: args.duration_s, ..Default::default() };
+            let opt = report::dive::DiveOptions { seed, duration_s, ..Default::default() };
             let s = report::dive::write_recording(&p, &opt)?;
             bar.finish_and_clear();
             eprintln!(
@@ -59,9 +79,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 s.truth_rows,
                 p.display()
             );
-            p
+            (p, page)
         }
-        (None, None) => anyhow::bail!("give a recording, or --simulate-dive SEED"),
     };
     let (session, note) = super::export::load_session(&recording, args.elf.as_deref())?;
     if let Some(n) = &note {

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 
-use super::Format;
+use super::{Format, args};
 use subnav_sil::{FaultPlan, FixPlan, Scenario};
 
 #[derive(clap::Args, Debug)]
@@ -23,21 +23,25 @@ pub struct Args {
     /// UTC at boot, RFC 3339 (default: 2026-06-21T08:00:00Z, sun about 35 deg high over the Bay of Biscay).
     #[arg(long)]
     pub start: Option<String>,
-    /// Latitude and longitude of the NED origin, deg.
+    /// Latitude of the NED origin, deg.
     #[arg(long, default_value_t = 44.0, allow_hyphen_values = true)]
     pub lat_deg: f64,
+    /// Longitude of the NED origin, deg.
     #[arg(long, default_value_t = -2.0, allow_hyphen_values = true)]
     pub lon_deg: f64,
-    /// Survey depth (m), forward speed (m/s), leg length and spacing (m), first leg heading (deg,
-    /// default 17.2).
+    /// Survey depth, m.
     #[arg(long, default_value_t = 10.0)]
     pub depth_m: f64,
+    /// Forward speed, m/s.
     #[arg(long, default_value_t = 1.0)]
     pub speed_mps: f64,
+    /// Lawnmower leg length, m.
     #[arg(long, default_value_t = 60.0)]
     pub leg_m: f64,
+    /// Spacing between legs, m.
     #[arg(long, default_value_t = 20.0)]
     pub spacing_m: f64,
+    /// Heading of the first leg, deg (default 17.2).
     #[arg(long, allow_hyphen_values = true)]
     pub heading_deg: Option<f64>,
     /// Water clarity: attenuation scale on clear water (1 = clear, 3 = coastal).
@@ -46,37 +50,27 @@ pub struct Args {
     /// IMU noise relative to the grade the firmware is tuned for (ICM-42688-P).
     #[arg(long, default_value_t = 1.0)]
     pub imu_noise_scale: f64,
-    /// Position fix (USBL-like) interval, s, and 1-sigma per axis, m.
+    /// Position fix (USBL-like) interval, s.
     #[arg(long, default_value_t = 5.0)]
     pub fix_period_s: f64,
+    /// Position fix 1-sigma per axis, m.
     #[arg(long, default_value_t = 2.0)]
     pub fix_sigma_m: f64,
     /// No position fixes (the horizontal position is then free-inertial).
     #[arg(long)]
     pub no_fixes: bool,
-    /// Faults: IMU NACKs from A to B s (`A,B`), a stuck IMU axis from T s (`T,AXIS`, axes 0-2
-    /// accel x/y/z, 3-5 gyro x/y/z), an occluded polarization unit (`A,B,UNIT`), depth NACK
-    /// probability.
-    #[arg(long)]
-    pub imu_nack: Option<String>,
-    #[arg(long)]
-    pub imu_stuck: Option<String>,
-    #[arg(long)]
-    pub occluded: Option<String>,
+    /// Fault: the IMU NACKs every transaction from A to B s (`A,B`).
+    #[arg(long, value_name = "A,B", value_parser = args::parse_window)]
+    pub imu_nack: Option<args::Window>,
+    /// Fault: an IMU axis stuck from T s on (`T,AXIS`; axes 0-2 accel x/y/z, 3-5 gyro x/y/z).
+    #[arg(long, value_name = "T,AXIS", value_parser = args::parse_stuck_axis)]
+    pub imu_stuck: Option<args::StuckAxis>,
+    /// Fault: a polarization unit occluded from A to B s (`A,B,UNIT`; units 0-3).
+    #[arg(long, value_name = "A,B,UNIT", value_parser = args::parse_occlusion)]
+    pub occluded: Option<args::Occlusion>,
+    /// Fault: probability that a depth-sensor transaction is NACKed.
     #[arg(long, default_value_t = 0.0)]
     pub depth_nack_probability: f64,
-}
-
-fn numbers(s: &str, n: usize, what: &str) -> Result<Vec<f64>> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("{what}: {s:?} is not {n} comma-separated numbers"))?;
-    if v.len() != n || v.iter().any(|x| !x.is_finite()) {
-        bail!("{what}: expected {n} comma-separated numbers, got {s:?}");
-    }
-    Ok(v)
 }
 
 /// The scenario the arguments describe (checked).
@@ -117,24 +111,9 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
     sc.imu_noise_scale = a.imu_noise_scale;
     sc.position_fixes = (!a.no_fixes).then_some(FixPlan { period_s: a.fix_period_s, sigma_m: a.fix_sigma_m });
     let mut f = FaultPlan { depth_nack_probability: a.depth_nack_probability, ..FaultPlan::default() };
-    if let Some(s) = &a.imu_nack {
-        let v = numbers(s, 2, "--imu-nack")?;
-        f.imu_nack_s = Some((v[0], v[1]));
-    }
-    if let Some(s) = &a.imu_stuck {
-        let v = numbers(s, 2, "--imu-stuck")?;
-        if !(0.0..=5.0).contains(&v[1]) || v[1].fract() != 0.0 {
-            bail!("--imu-stuck: the axis must be 0..5, got {}", v[1]);
-        }
-        f.imu_stuck_axis = Some((v[0], v[1] as usize));
-    }
-    if let Some(s) = &a.occluded {
-        let v = numbers(s, 3, "--occluded")?;
-        if !(0.0..=3.0).contains(&v[2]) || v[2].fract() != 0.0 {
-            bail!("--occluded: the unit must be 0..3, got {}", v[2]);
-        }
-        f.occluded_unit = Some((v[0], v[1], v[2] as usize));
-    }
+    f.imu_nack_s = a.imu_nack.map(|w| (w.start_s, w.end_s));
+    f.imu_stuck_axis = a.imu_stuck.map(|s| (s.from_s, s.axis));
+    f.occluded_unit = a.occluded.map(|o| (o.window.start_s, o.window.end_s, o.unit));
     sc.faults = f;
     Ok(sc)
 }

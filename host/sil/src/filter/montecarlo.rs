@@ -192,8 +192,8 @@ pub fn compare(
 mod tests {
     use super::*;
 
-    /// Small asserted version of the Monte Carlo (the full one is `subnav filter montecarlo
-    /// --runs 500`, results in docs/PERFORMANCE.md): 6 seeded 240 s dives with a 60 s heading
+    /// Small asserted version of the Monte Carlo (the full one is `subnav filter monte-carlo
+    /// --seeds 0..500`, results in docs/PERFORMANCE.md): 6 seeded 240 s dives with a 60 s heading
     /// noise x10 period and two DVL bursts x20. The adaptive filter must beat the plain one on
     /// position RMSE and must not diverge.
     #[test]
