@@ -69,6 +69,28 @@ pub enum Record {
     Usbl(UsblObs),
 }
 
+impl Record {
+    /// One JSON line. The `"type"` tag is read first and the record decoded from the parsed
+    /// value, not through serde's internally tagged enum: that path buffers numbers, and with
+    /// serde_json's `arbitrary_precision` (enabled in the CLI's build by defmt-decoder) a
+    /// buffered number no longer reads as an f64.
+    pub fn parse(line: &str) -> Result<Self, serde_json::Error> {
+        use serde::de::Error as _;
+        let mut v: serde_json::Value = serde_json::from_str(line)?;
+        let tag = v
+            .as_object_mut()
+            .and_then(|o| o.remove("type"))
+            .ok_or_else(|| serde_json::Error::custom("missing \"type\" (config, imu, dvl or usbl)"))?;
+        match tag.as_str() {
+            Some("config") => serde_json::from_value(v).map(Record::Config),
+            Some("imu") => serde_json::from_value(v).map(Record::Imu),
+            Some("dvl") => serde_json::from_value(v).map(Record::Dvl),
+            Some("usbl") => serde_json::from_value(v).map(Record::Usbl),
+            _ => Err(serde_json::Error::custom(format!("unknown record type {tag} (config, imu, dvl or usbl)"))),
+        }
+    }
+}
+
 /// A whole log, each stream sorted by time.
 #[derive(Debug, Clone)]
 pub struct SensorLog {
@@ -136,7 +158,7 @@ impl SensorLog {
             if line.trim().is_empty() {
                 continue;
             }
-            let rec: Record = serde_json::from_str(&line).map_err(|e| FgoError::Input(format!("line {}: {e}", n + 1)))?;
+            let rec = Record::parse(&line).map_err(|e| FgoError::Input(format!("line {}: {e}", n + 1)))?;
             match rec {
                 Record::Config(c) => {
                     if config.replace(c).is_some() {
