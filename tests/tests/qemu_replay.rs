@@ -4,8 +4,9 @@
 //! Every recorded Nav solution must be reproduced to f32 rounding: each value within 1e-5
 //! relative, `|replayed - recorded| <= 1e-5 * max(|recorded|, floor)`, floors 1 m (position),
 //! 0.1 m/s (velocity), 1 (quaternion components) and 1e-4 (sigmas, m, m/s, rad), mode and time
-//! equal. The host and the Cortex-M4F differ only in float details (libm versus the host's
-//! maths library in nalgebra); the measured difference is in docs/PERFORMANCE.md.
+//! equal. The host and the Cortex-M4F could differ only in float details (the host's maths
+//! library where nalgebra calls it instead of libm); measured: every Nav bit-identical (see
+//! `subnav_sil::replay`, "Host and target").
 //! Needs `SUBNAV_FIRMWARE_QEMU_ELF` (set by `cargo xtask test`).
 
 use std::time::Duration;
