@@ -188,7 +188,7 @@ pub fn replay_file(path: &Path, tolerance_rel: f64) -> Result<ReplayReport> {
 
 /// Replay a recording read into memory.
 pub fn replay_loaded(loaded: &Loaded, tolerance_rel: f64) -> Result<ReplayReport> {
-    if !(tolerance_rel >= 0.0) {
+    if tolerance_rel.is_nan() || tolerance_rel < 0.0 {
         bail!("the tolerance must be a number >= 0, got {tolerance_rel}");
     }
     let mut limitations = Vec::new();
@@ -383,7 +383,7 @@ impl State<'_> {
             beyond = true;
             note("mode".into(), format!("{:?}", a.mode), format!("{:?}", b.mode), f64::INFINITY);
         }
-        let groups: [(&str, &[f32], &[f32], f64, usize); 6] = [
+        let groups: [FieldGroup; 6] = [
             ("pos_ned_m", &a.pos_ned_m, &b.pos_ned_m, FLOOR_POSITION_M, 0),
             ("vel_ned_mps", &a.vel_ned_mps, &b.vel_ned_mps, FLOOR_VELOCITY_MPS, 1),
             ("att_nb_wxyz", &a.att_nb_wxyz, &b.att_nb_wxyz, FLOOR_ATTITUDE, 2),
@@ -442,6 +442,9 @@ fn same_compass(a: &CompassReport, b: &CompassReport) -> bool {
     };
     bits(a) == bits(b)
 }
+
+/// (name, replayed, recorded, relative floor, report group: 0 position, 1 velocity, 2 attitude, 3 sigmas).
+type FieldGroup<'n> = (&'static str, &'n [f32], &'n [f32], f64, usize);
 
 struct Sink<'s, 'a>(&'s RefCell<State<'a>>);
 
