@@ -64,6 +64,10 @@ pub fn wrap_pi<T: RealField + Copy>(a: T) -> T {
 /// circular mean made 62 such calls). f64 keeps `RealField`'s.
 pub trait AngleScalar: RealField + Copy {
     fn sin_cos_rad(self) -> (Self, Self);
+    /// `atan2(self, x)`. f32 calls `libm::atan2f` on every build: `RealField::atan2` is the host
+    /// maths library's with `std` (glibc's differs from libm's by 1 ulp for ~0.3 % of inputs),
+    /// and the host replay of a target recording (`subnav replay`) must compute what the target did.
+    fn atan2_rad(self, x: Self) -> Self;
 }
 
 impl AngleScalar for f32 {
@@ -74,11 +78,17 @@ impl AngleScalar for f32 {
         }
         crate::ephemeris::phase::sincos_rad(self)
     }
+    fn atan2_rad(self, x: f32) -> f32 {
+        libm::atan2f(self, x)
+    }
 }
 
 impl AngleScalar for f64 {
     fn sin_cos_rad(self) -> (f64, f64) {
         nalgebra::ComplexField::sin_cos(self)
+    }
+    fn atan2_rad(self, x: f64) -> f64 {
+        nalgebra::RealField::atan2(self, x)
     }
 }
 
@@ -90,7 +100,7 @@ pub fn circular_mean<T: AngleScalar, const S: usize>(angles: impl Iterator<Item 
         s += sa * *w;
         c += ca * *w;
     }
-    s.atan2(c)
+    s.atan2_rad(c)
 }
 
 impl<T: AngleScalar, const D: usize> Space<T, D> for AngleSpace {

@@ -42,6 +42,8 @@ enum Command {
     Sim(cli::sim::Args),
     /// Run a dive scenario with the firmware in the loop (QEMU or native) and print error statistics.
     Run(cli::run::Args),
+    /// Run the firmware's estimator on a recording's raw samples and commands and compare with the Nav solutions it sent
+    Replay(cli::replay::Args),
     /// Mission report from a recording (+ truth): plots and a Markdown/HTML page.
     Report(cli::report::Args),
     /// LMNN metric learning on labelled CSV samples (fit a model, evaluate kNN accuracy).
@@ -79,6 +81,7 @@ fn main() -> std::process::ExitCode {
         Command::Record(a) => cli::record::run(a, args.format),
         Command::Export(a) => cli::export::run(a, args.format),
         Command::Report(a) => cli::report::run(a, args.format),
+        Command::Replay(a) => cli::replay::run(a, args.format),
         Command::Sim(a) => cli::sim::run(a, args.format),
         Command::Run(a) => cli::run::run(a, args.format),
         Command::Lmnn(a) => cli::lmnn::run(a, args.format),

@@ -5,6 +5,7 @@ pub mod chips;
 pub mod dive;
 pub mod filter;
 pub mod head;
+pub mod replay;
 pub mod sil;
 
 pub use head::{FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};

@@ -15,12 +15,11 @@ use subnav_firmware::TelemetrySink;
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
-use subnav_wire::{
-    self as wire, Board, Command, ConfigItem, Decoded, Downlink, FrameDecoder, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, Uplink,
-};
+use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, Uplink};
 
 use super::dive::{DiveResult, evaluate};
 use super::head::{FIX_LEAD_S, Scenario, SimHead};
+use super::replay::boot_commands;
 use subnav_link::qemu::BusHandler;
 
 /// The bridge's byte link, answered in process by the chip models.
@@ -91,9 +90,10 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
     app.boot(0, &mut sink);
-    app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: sc.start_utc_unix_us } }, &mut sink);
-    let origin = ConfigItem::Origin { lat_rad: sc.lat_deg.to_radians(), lon_rad: sc.lon_deg.to_radians(), alt_m: 0.0 };
-    app.handle_command(0, Downlink { seq: 0, command: Command::SetConfig(origin) }, &mut sink);
+    // The configured start, as the QEMU board applies it from the same start arguments.
+    for command in boot_commands(&sc.board_args()) {
+        app.handle_command(0, Downlink { seq: 0, command }, &mut sink);
+    }
 
     let link = InProcessLink { head: SimHead::new(sc), rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
@@ -138,7 +138,8 @@ impl NativeRun {
     /// is the firmware time it was written at, plus `t0_unix_us`).
     pub fn write_recording(&self, path: &std::path::Path, sc: &Scenario) -> anyhow::Result<()> {
         use subnav_link::record::{Meta, Stream, Writer};
-        let meta = Meta::new(format!("native software-in-the-loop, scenario seed {}", sc.seed));
+        let mut meta = Meta::new(format!("native software-in-the-loop, scenario seed {}", sc.seed));
+        meta.board_args = sc.board_args();
         let mut w = Writer::create(path, &meta)?;
         let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
         let mut down = self.downlink.iter().peekable();

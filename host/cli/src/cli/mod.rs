@@ -20,6 +20,7 @@ pub mod phasecorr;
 pub mod print;
 pub mod qemu;
 pub mod record;
+pub mod replay;
 pub mod report;
 pub mod run;
 pub mod sim;

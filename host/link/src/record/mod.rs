@@ -97,11 +97,22 @@ pub struct Meta {
     /// The firmware ELF, if known (needed to decode the defmt stream).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub elf: Option<String>,
+    /// The board's start arguments (`utc_unix_us=`, `lat_e7=`, `lon_e7=`, as on the QEMU
+    /// semihosting command line): the configured start the board applies at boot as seq-0
+    /// commands, which never cross the downlink (`subnav replay` needs them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub board_args: Vec<String>,
 }
 
 impl Meta {
     pub fn new(source: impl Into<String>) -> Self {
-        Self { source: source.into(), start_unix_us: now_unix_us(), writer: format!("subnav {}", env!("CARGO_PKG_VERSION")), elf: None }
+        Self {
+            source: source.into(),
+            start_unix_us: now_unix_us(),
+            writer: format!("subnav {}", env!("CARGO_PKG_VERSION")),
+            elf: None,
+            board_args: Vec::new(),
+        }
     }
 }
 

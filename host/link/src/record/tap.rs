@@ -21,6 +21,7 @@ impl QemuRecorder {
     pub fn start(cfg: &mut QemuConfig, path: &Path) -> Result<Self> {
         let mut meta = Meta::new(format!("qemu {}", cfg.elf.display()));
         meta.elf = Some(cfg.elf.display().to_string());
+        meta.board_args = cfg.board_args.clone();
         let mut w = Writer::create(path, &meta)?;
         let (tx, rx) = mpsc::channel::<RawBytes>();
         cfg.raw_tap = Some(tx);
