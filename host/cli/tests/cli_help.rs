@@ -52,7 +52,7 @@ const PROBE_ONLY: &[(&str, &str)] = &[("flash", "Flash a board's firmware"), ("a
 
 /// PENDING MERGE: `replay` is added on another branch. Until that branch is merged it may be
 /// absent; when present it is checked like every other entry. Remove it from this list at merge.
-const PENDING_MERGE: &[&str] = &["replay"];
+const PENDING_MERGE: &[&str] = &[];
 
 fn subnav(args: &[&str]) -> String {
     let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(args).output().unwrap();
