@@ -30,6 +30,18 @@ pub enum AdaptError {
     OutOfRange,
 }
 
+impl core::fmt::Display for AdaptError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            AdaptError::NonFinite => "adaptive noise: residual or H P H^T is NaN or infinite (R unchanged)",
+            AdaptError::BadAlpha => "adaptive noise: forgetting factor outside [0, 1)",
+            AdaptError::OutOfRange => "interpolation time outside the bracketing samples, or samples not increasing",
+        })
+    }
+}
+
+impl core::error::Error for AdaptError {}
+
 /// The adaptive noise estimator `R_k` of one sensor.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AdaptiveNoise<T: RealField + Copy, const M: usize> {

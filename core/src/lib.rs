@@ -20,3 +20,6 @@ pub mod ephemeris;
 pub mod head;
 pub mod nav;
 pub mod ukf;
+
+#[cfg(test)]
+mod error_tests;

@@ -25,6 +25,18 @@ pub trait ByteLink {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BridgeError(pub BusFault);
 
+impl core::fmt::Display for BridgeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "bridged bus transaction failed: {}", self.0)
+    }
+}
+
+impl core::error::Error for BridgeError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        Some(&self.0)
+    }
+}
+
 impl i2c::Error for BridgeError {
     fn kind(&self) -> i2c::ErrorKind {
         match self.0 {

@@ -16,6 +16,18 @@ use crate::drivers::BusErrorKind;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct HalBusError(pub FaultKind);
 
+impl core::fmt::Display for HalBusError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "HAL bus transaction failed: {}", self.0)
+    }
+}
+
+impl core::error::Error for HalBusError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        Some(&self.0)
+    }
+}
+
 impl BusErrorKind for HalBusError {
     fn fault_kind(&self) -> FaultKind {
         self.0

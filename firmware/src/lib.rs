@@ -17,6 +17,9 @@ pub mod sensors;
 pub mod telemetry;
 pub mod time;
 
+#[cfg(test)]
+mod error_tests;
+
 pub use app::{App, AppConfig};
 pub use telemetry::{Telemetry, TelemetrySink};
 

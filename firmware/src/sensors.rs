@@ -11,6 +11,18 @@ pub struct SensorFault {
     pub kind: FaultKind,
 }
 
+impl core::fmt::Display for SensorFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}: {}", self.source, self.kind)
+    }
+}
+
+impl core::error::Error for SensorFault {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        Some(&self.kind)
+    }
+}
+
 pub trait SensorSuite {
     /// Advance non-blocking work (conversions, scans); called every scheduler tick.
     fn service(&mut self, _t_us: u64) {}

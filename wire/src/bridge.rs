@@ -90,6 +90,18 @@ pub enum BusFault {
     Other,
 }
 
+impl core::fmt::Display for BusFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            BusFault::Nack => "bus NACK: no device acknowledged the address or a data byte",
+            BusFault::Timeout => "bus timeout: the device held the bus too long",
+            BusFault::Other => "bus error (arbitration loss, overrun or other)",
+        })
+    }
+}
+
+impl core::error::Error for BusFault {}
+
 /// Host -> firmware: the bytes read by each `Read` / `Transfer` op, concatenated in order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

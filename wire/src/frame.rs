@@ -44,18 +44,17 @@ pub enum FrameError {
 impl core::fmt::Display for FrameError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
-            FrameError::BufferTooSmall => "output buffer too small",
-            FrameError::Cobs => "invalid COBS encoding",
-            FrameError::TooShort => "frame too short",
-            FrameError::Crc => "CRC mismatch",
-            FrameError::Payload => "CRC ok but payload is not a valid message",
-            FrameError::Overlong => "frame longer than the protocol's maximum",
+            FrameError::BufferTooSmall => "output buffer too small for the encoded frame",
+            FrameError::Cobs => "frame is not valid COBS",
+            FrameError::TooShort => "frame too short to hold its 4-byte CRC-32",
+            FrameError::Crc => "frame CRC-32 does not match its payload",
+            FrameError::Payload => "frame CRC ok but the payload is not a valid message (different protocol version?)",
+            FrameError::Overlong => "frame longer than the protocol's maximum (delimiter lost?)",
         })
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for FrameError {}
+impl core::error::Error for FrameError {}
 
 /// Encode `msg` as one frame into `buf`; returns the frame including the trailing `0x00`.
 pub fn encode<'a, T: Serialize>(msg: &T, buf: &'a mut [u8]) -> Result<&'a mut [u8], FrameError> {

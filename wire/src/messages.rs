@@ -205,6 +205,46 @@ pub struct Fault {
     pub count: u32,
 }
 
+impl core::fmt::Display for FaultSource {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            FaultSource::Imu => f.write_str("IMU"),
+            FaultSource::Polarization { unit } => write!(f, "polarization unit {unit}"),
+            FaultSource::Depth => f.write_str("depth sensor"),
+            FaultSource::Link => f.write_str("host link"),
+            FaultSource::Filter => f.write_str("navigation filter"),
+            FaultSource::Scheduler => f.write_str("scheduler"),
+        }
+    }
+}
+
+impl core::fmt::Display for FaultKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            FaultKind::BusNack => "bus NACK: the device did not acknowledge",
+            FaultKind::BusTimeout => "bus timeout or no data ready",
+            FaultKind::BusOther => "bus error (arbitration loss, overrun or other)",
+            FaultKind::BadCrc => "calibration data failed its CRC check",
+            FaultKind::IdentityMismatch => "identity register does not match the expected chip",
+            FaultKind::Stuck => "readings stuck at the same value",
+            FaultKind::Saturated => "readings saturated (at full scale)",
+            FaultKind::NonFinite => "non-finite (NaN or infinite) value",
+            FaultKind::CorruptFrame => "corrupt downlink frame (bad COBS, CRC or payload)",
+            FaultKind::Overrun => "task overran its period",
+            FaultKind::TelemetryDropped => "telemetry dropped: output buffer full",
+            FaultKind::Occluded => "no light while the other units see it (covered or fouled)",
+        })
+    }
+}
+
+impl core::error::Error for FaultKind {}
+
+impl core::fmt::Display for Fault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}: {} (at t = {} us, {} times since boot)", self.source, self.kind, self.t_us, self.count)
+    }
+}
+
 /// Why a downlink command was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 #[cfg_attr(test, derive(postcard_schema::Schema))]
@@ -216,6 +256,20 @@ pub enum Refusal {
     NotPositiveDefinite,
     Busy,
 }
+
+impl core::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Refusal::OutOfRange => "a command value is outside its accepted range",
+            Refusal::NotFinite => "a command value is NaN or infinite",
+            Refusal::NotSupported => "command not supported by this firmware",
+            Refusal::NotPositiveDefinite => "the command's covariance is not positive definite",
+            Refusal::Busy => "sensor head busy (queue full): command not applied, retry",
+        })
+    }
+}
+
+impl core::error::Error for Refusal {}
 
 /// The sensor head's answer to every downlink command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]

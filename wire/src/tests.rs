@@ -165,3 +165,70 @@ proptest! {
         }
     }
 }
+
+/// Every error's message is non-empty and names its variant uniquely; building the list checks
+/// that each type coerces to `&dyn core::error::Error`.
+fn assert_distinct_messages(what: &str, errors: &[&dyn core::error::Error]) {
+    let messages: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
+    for (i, m) in messages.iter().enumerate() {
+        assert!(!m.trim().is_empty(), "{what}: variant {i} ({:?}) has an empty message", errors[i]);
+        for (j, other) in messages.iter().enumerate().skip(i + 1) {
+            assert_ne!(m, other, "{what}: variants {i} and {j} share the message");
+        }
+    }
+}
+
+#[test]
+fn errors_display_distinct_messages() {
+    use crate::bridge::BusFault;
+    assert_distinct_messages(
+        "FrameError",
+        &[
+            &FrameError::BufferTooSmall,
+            &FrameError::Cobs,
+            &FrameError::TooShort,
+            &FrameError::Crc,
+            &FrameError::Payload,
+            &FrameError::Overlong,
+        ],
+    );
+    assert_distinct_messages(
+        "Refusal",
+        &[&Refusal::OutOfRange, &Refusal::NotFinite, &Refusal::NotSupported, &Refusal::NotPositiveDefinite, &Refusal::Busy],
+    );
+    assert_distinct_messages("BusFault", &[&BusFault::Nack, &BusFault::Timeout, &BusFault::Other]);
+    assert_distinct_messages(
+        "FaultKind",
+        &[
+            &FaultKind::BusNack,
+            &FaultKind::BusTimeout,
+            &FaultKind::BusOther,
+            &FaultKind::BadCrc,
+            &FaultKind::IdentityMismatch,
+            &FaultKind::Stuck,
+            &FaultKind::Saturated,
+            &FaultKind::NonFinite,
+            &FaultKind::CorruptFrame,
+            &FaultKind::Overrun,
+            &FaultKind::TelemetryDropped,
+            &FaultKind::Occluded,
+        ],
+    );
+    let sources = [
+        FaultSource::Imu,
+        FaultSource::Polarization { unit: 3 },
+        FaultSource::Depth,
+        FaultSource::Link,
+        FaultSource::Filter,
+        FaultSource::Scheduler,
+    ];
+    let names: Vec<String> = sources.iter().map(|s| s.to_string()).collect();
+    for (i, n) in names.iter().enumerate() {
+        assert!(!n.is_empty());
+        assert!(names.iter().skip(i + 1).all(|o| o != n), "FaultSource {n:?} repeated");
+    }
+    assert!(names[1].contains('3'), "the polarization unit number is shown: {}", names[1]);
+    let fault = Fault { t_us: 1_500_000, source: FaultSource::Depth, kind: FaultKind::BusNack, count: 4 };
+    let text = fault.to_string();
+    assert!(text.contains("depth sensor") && text.contains("NACK") && text.contains('4'), "{text}");
+}

@@ -66,6 +66,14 @@ pub enum NoFix {
     Ephemeris = 15,
 }
 
+impl core::fmt::Display for NoFix {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "no heading: {}", self.describe())
+    }
+}
+
+impl core::error::Error for NoFix {}
+
 impl NoFix {
     pub fn code(self) -> u8 {
         self as u8
@@ -94,21 +102,21 @@ impl NoFix {
     pub fn describe(self) -> &'static str {
         use NoFix::*;
         match self {
-            BadInput => "inputs do not match the configuration",
-            NonFinite => "non-finite measurement",
-            Dark => "too little light",
-            Saturated => "saturated channels",
-            LowDolp => "degree of polarization too low",
-            TooFewUnits => "too few good polarization units",
-            Degenerate => "geometry does not determine the sun",
-            NoConvergence => "eigen solver did not converge",
-            Inconsistent => "measurements inconsistent with the model",
-            OutsideSnellWindow => "refracted sun outside the Snell window",
-            TiltInvalid => "no usable gravity vector",
-            SunNearZenith => "sun too close to the zenith",
-            SunBelowHorizon => "sun below the horizon",
-            NoTime => "time or position unknown",
-            Ephemeris => "ephemeris refused the input",
+            BadInput => "inputs do not match the configuration (unit count)",
+            NonFinite => "NaN or infinite measurement",
+            Dark => "too little light in most units",
+            Saturated => "saturated channels in most units",
+            LowDolp => "degree of linear polarization too low in most units",
+            TooFewUnits => "fewer good polarization units than required",
+            Degenerate => "the e-vectors do not determine the sun direction",
+            NoConvergence => "the eigen solver did not converge",
+            Inconsistent => "residuals or sun elevation inconsistent with the noise model and ephemeris",
+            OutsideSnellWindow => "the measured refracted sun lies outside the Snell window",
+            TiltInvalid => "no usable gravity vector (not about 1 g, or body x axis vertical)",
+            SunNearZenith => "sun too close to the zenith: its azimuth is undefined",
+            SunBelowHorizon => "sun below the minimum elevation",
+            NoTime => "UTC time or position unknown (sun vector measured)",
+            Ephemeris => "the ephemeris refused the time or position",
         }
     }
 }

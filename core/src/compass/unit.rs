@@ -68,6 +68,19 @@ pub enum UnitReject {
     NonFinite,
 }
 
+impl core::fmt::Display for UnitReject {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            UnitReject::Saturated => "polarization unit rejected: a channel is saturated",
+            UnitReject::Dark => "polarization unit rejected: total intensity S0 below the minimum (too dark)",
+            UnitReject::LowDolp => "polarization unit rejected: degree of linear polarization below the minimum",
+            UnitReject::NonFinite => "polarization unit rejected: NaN or infinite Stokes value",
+        })
+    }
+}
+
+impl core::error::Error for UnitReject {}
+
 /// One unit's measurement after calibration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UnitObservation {
@@ -94,6 +107,18 @@ pub enum ModelError {
     /// Gain <= 0, extinction ratio <= 1 or non-finite values.
     BadCalibration,
 }
+
+impl core::fmt::Display for ModelError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            ModelError::BadGeometry => "unit geometry: view or axis not unit length, not perpendicular, or not finite",
+            ModelError::Singular => "unit channels: polarizer angles or extinction ratios do not determine S1, S2",
+            ModelError::BadCalibration => "unit calibration: gain <= 0, extinction ratio <= 1, or not finite",
+        })
+    }
+}
+
+impl core::error::Error for ModelError {}
 
 fn unit3(v: [f32; 3]) -> Vector3<f32> {
     Vector3::new(v[0], v[1], v[2])

@@ -97,6 +97,18 @@ pub enum EphemerisError {
     TimeOutOfRange,
 }
 
+impl core::fmt::Display for EphemerisError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            EphemerisError::NonFinite => "ephemeris input (position, height, delta T or atmosphere) is NaN or infinite",
+            EphemerisError::LatitudeOutOfRange => "latitude outside [-90, 90] deg",
+            EphemerisError::TimeOutOfRange => "time more than 150 years from J2000 (or |delta T| above 10,000 s)",
+        })
+    }
+}
+
+impl core::error::Error for EphemerisError {}
+
 /// TT - UT1 estimate (s) for a POSIX time, from the Espenak & Meeus (NASA) polynomials for
 /// 2005-2050 and 2050-2150 (also used, clamped, outside). A few seconds of error are harmless.
 pub fn delta_t_estimate_s(unix_us: i64) -> f32 {

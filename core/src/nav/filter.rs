@@ -223,6 +223,26 @@ pub enum NavError {
     Filter(UkfError),
 }
 
+impl core::fmt::Display for NavError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            NavError::BadConfig => f.write_str("navigation filter configuration out of range"),
+            NavError::NonFinite => f.write_str("sample is NaN, infinite or implausibly large: rejected"),
+            NavError::BadTime => f.write_str("sample time not after the previous one, or the IMU gap exceeds max_imu_dt_s"),
+            NavError::Filter(e) => write!(f, "the UKF refused the step: {e}"),
+        }
+    }
+}
+
+impl core::error::Error for NavError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            NavError::Filter(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
 impl From<UkfError> for NavError {
     fn from(e: UkfError) -> Self {
         match e {

@@ -77,6 +77,19 @@ pub enum UkfError {
     BadConfig,
 }
 
+impl core::fmt::Display for UkfError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            UkfError::NonFiniteInput => "UKF input (measurement, noise matrix or scale) is NaN or infinite",
+            UkfError::NonFiniteResult => "UKF model output or result is NaN or infinite",
+            UkfError::NotPositiveDefinite => "UKF innovation covariance is not positive definite",
+            UkfError::BadConfig => "UKF configuration out of range (sigma-point weights or adaptive settings)",
+        })
+    }
+}
+
+impl core::error::Error for UkfError {}
+
 /// What an update did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UpdateReport<T> {

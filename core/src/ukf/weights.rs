@@ -25,6 +25,17 @@ pub enum WeightError {
     BadParameters,
 }
 
+impl core::fmt::Display for WeightError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            WeightError::WrongPointCount => "sigma-point count S is not 2N + 1 (or N is 0)",
+            WeightError::BadParameters => "sigma-point parameters give N + lambda <= 0 or are not finite",
+        })
+    }
+}
+
+impl core::error::Error for WeightError {}
+
 impl<T: RealField + Copy, const S: usize> SigmaWeights<T, S> {
     /// Weights for an `n`-dimensional state.
     pub fn merwe(n: usize, alpha: T, beta: T, kappa: T) -> Result<Self, WeightError> {

@@ -44,6 +44,25 @@ pub enum Error<E> {
     InvalidInput,
 }
 
+/// The bus error is shown with `Debug` (embedded-hal bus errors need not implement `Display`).
+impl<E: core::fmt::Debug> core::fmt::Display for Error<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Error::Bus(e) => write!(f, "bus transaction failed: {e:?}"),
+            Error::IdentityMismatch { expected, found } => {
+                write!(f, "identity register reads {found:#04x}, expected {expected:#04x} (wrong chip or dead bus)")
+            }
+            Error::BadCrc { expected, computed } => {
+                write!(f, "calibration PROM CRC-4 mismatch: stored {expected:#x}, computed {computed:#x}")
+            }
+            Error::NotReady => f.write_str("chip has no valid result yet (conversion not finished or not powered up)"),
+            Error::InvalidInput => f.write_str("argument or reading outside what the chip supports"),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for Error<E> {}
+
 /// How a bus error maps to a telemetry fault kind. Implemented for the bus error types the
 /// sensor head uses; [`Error::fault_kind`] uses it.
 pub trait BusErrorKind {

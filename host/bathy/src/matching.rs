@@ -91,6 +91,28 @@ pub enum Rejection {
     Diverged,
 }
 
+impl std::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Rejection::NoOverlap { cells } => write!(f, "grids overlap in only {cells} cells (below min_overlap_cells)"),
+            Rejection::LowRelief { relief_m } => write!(f, "terrain relief {relief_m:.3} m in the overlap is below min_relief_m"),
+            Rejection::LowInformation { mean_don } => {
+                write!(f, "mean difference of normals {mean_don:.4} in the overlap is below min_mean_don (flat terrain)")
+            }
+            Rejection::Ambiguous { peak_ratio } => {
+                write!(f, "ambiguous match: best / runner-up cost ratio {peak_ratio:.3} is above max_peak_ratio")
+            }
+            Rejection::IllConditioned { min_eig } => {
+                write!(f, "shift information ill-conditioned: smallest eigenvalue per cell {min_eig:.3e} is below min_info_eig")
+            }
+            Rejection::LargeResidual { rms_m } => write!(f, "residual RMS {rms_m:.3} m after alignment is above max_rms_m"),
+            Rejection::Diverged => f.write_str("alignment diverged (no step, or moved more than two coarse cells from the coarse peak)"),
+        }
+    }
+}
+
+impl std::error::Error for Rejection {}
+
 /// Cost over the overlap: (variance of b(p + t) - a(p), count), nearest-cell lookup.
 fn coarse_cost(a: &Grid, b: &Grid, t: V2) -> (f64, usize) {
     let (mut s, mut s2, mut n) = (0.0, 0.0, 0usize);

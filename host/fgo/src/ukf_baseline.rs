@@ -55,8 +55,8 @@ fn state_of(x: &X) -> NodeState {
     )
 }
 
-fn err(e: impl std::fmt::Debug) -> FgoError {
-    FgoError::Numeric(format!("shared UKF: {e:?}"))
+fn err(e: impl std::fmt::Display) -> FgoError {
+    FgoError::Numeric(format!("shared UKF: {e}"))
 }
 
 /// Run the UKF over the log; returns the estimate after each DVL/USBL update.

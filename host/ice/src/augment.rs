@@ -114,6 +114,22 @@ pub enum RelPoseError {
     Degenerate,
 }
 
+impl std::fmt::Display for RelPoseError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RelPoseError::TooFewPoints(n) => {
+                write!(f, "relative pose: only {n} common features with usable stereo depth (need min_inliers, at least 3)")
+            }
+            RelPoseError::TooFewInliers(n) => {
+                write!(f, "relative pose: only {n} inliers in the best hypothesis (need min_inliers, at least 3)")
+            }
+            RelPoseError::Degenerate => f.write_str("relative pose: degenerate geometry (no hypothesis, or the refinement failed)"),
+        }
+    }
+}
+
+impl std::error::Error for RelPoseError {}
+
 /// Kabsch: the rotation and translation minimizing `sum |q - (R p + t)|^2`.
 pub fn kabsch(p: &[Vector3<f64>], q: &[Vector3<f64>]) -> Option<(Matrix3<f64>, Vector3<f64>)> {
     let n = p.len();

@@ -17,6 +17,20 @@ pub enum TriangulationError {
     Residual(f64),
 }
 
+impl std::fmt::Display for TriangulationError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TriangulationError::NoDisparity => f.write_str("triangulation: stereo disparity too small or negative for an initial depth"),
+            TriangulationError::Degenerate => f.write_str("triangulation: normal equations singular or the point went behind a camera"),
+            TriangulationError::Residual(rms) => {
+                write!(f, "triangulation: RMS reprojection error {rms:.3e} (normalized units) above the limit")
+            }
+        }
+    }
+}
+
+impl std::error::Error for TriangulationError {}
+
 /// Gauss-Newton triangulation. `obs` pairs a clone with its observation.
 pub fn triangulate(cam: &StereoCamera, obs: &[(&CloneState, StereoObs)]) -> Result<Vector3<f64>, TriangulationError> {
     let (c0, z0) = obs.first().ok_or(TriangulationError::Degenerate)?;

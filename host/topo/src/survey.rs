@@ -303,7 +303,7 @@ struct Mapper<'a> {
 
 impl<'a> Mapper<'a> {
     fn new(cfg: &'a SurveyConfig, p0: [f64; 2], duration: f64, last_lap_after_s: f64) -> anyhow::Result<Self> {
-        let filt = SlamFilter::new(p0, cfg.tuning).map_err(|e| anyhow::anyhow!("filter init: {e:?}"))?;
+        let filt = SlamFilter::new(p0, cfg.tuning).map_err(|e| anyhow::anyhow!("filter init: {e}"))?;
         Ok(Mapper {
             cfg,
             filt,
@@ -361,7 +361,7 @@ impl<'a> Mapper<'a> {
         anyhow::ensure!(dx.iter().all(|v| v.is_finite()) && t.is_finite(), "frame at t = {t} s: non-finite time or displacement");
         self.dr = [self.dr[0] + dx[0], self.dr[1] + dx[1]];
         let dt = self.track.last().map_or(cfg.frame_dt_s, |p| (t - p.t_s).max(1e-3));
-        self.filt.predict(dx, dt).map_err(|e| anyhow::anyhow!("predict: {e:?}"))?;
+        self.filt.predict(dx, dt).map_err(|e| anyhow::anyhow!("predict: {e}"))?;
         self.since_event_m += (dx[0] * dx[0] + dx[1] * dx[1]).sqrt();
         let truth_opt = fr.truth_ned_m;
         if let Some(d) = fr.depth_m.filter(|d| d.is_finite()) {

@@ -61,8 +61,8 @@ pub fn text(m: &Uplink) -> String {
             h.gate_rejects,
             h.nonfinite_rejects
         ),
-        Uplink::Fault(f) => format!("FAULT   t={} source={:?} kind={:?} count={}", secs(f.t_us), f.source, f.kind, f.count),
-        Uplink::Ack(a) => format!("ack     seq={} result={:?}", a.seq, a.result),
+        Uplink::Fault(f) => format!("FAULT   t={} {}: {} count={}", secs(f.t_us), f.source, f.kind, f.count),
+        Uplink::Ack(a) => format!("ack     seq={} {}", a.seq, a.result.map_or_else(|r| format!("refused: {r}"), |()| "ok".to_string())),
     }
 }
 

@@ -52,7 +52,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let atm = Atmosphere { pressure_hpa: args.pressure_hpa as f32, temp_c: args.temp_c as f32 };
     let dt = args.delta_t.map_or_else(|| ephemeris::delta_t_estimate_s(t), |d| d as f32);
     let p = ephemeris::sun_position(t, &obs, (!args.no_refraction).then_some(&atm), dt)
-        .map_err(|e| anyhow::anyhow!("ephemeris refused the input: {e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("ephemeris refused the input: {e}"))?;
     let d = |x: f32| (x as f64).to_degrees();
     match format {
         Format::Text => println!(

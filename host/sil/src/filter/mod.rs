@@ -53,5 +53,5 @@ pub fn start(cfg: NavConfig, t_us: u64, pos_ned_m: [f32; 3], vel_ned_mps: [f32; 
         vel_ned_mps: Vector3::from(vel_ned_mps),
         pos_ned_m: Vector3::from(pos_ned_m),
     };
-    NavFilter15::new(cfg, init).map_err(|e| anyhow::anyhow!("cannot start the navigation filter: {e:?}"))
+    NavFilter15::new(cfg, init).map_err(|e| anyhow::anyhow!("cannot start the navigation filter: {e}"))
 }
