@@ -217,10 +217,16 @@ mod tests {
     /// ahead and 0.3 m below the IMU, turned 45 deg in yaw; the vehicle yaws slowly (a
     /// +-0.05 rad/s sine) so the lever arm matters. Returns the final horizontal velocity error.
     fn straight_run(with_dvl: bool) -> (f32, NavFilter15) {
+        run_with(with_dvl, None)
+    }
+
+    /// [`straight_run`], optionally telling the filter a different mounting than the truth.
+    fn run_with(with_dvl: bool, filter_mount: Option<DvlMounting>) -> (f32, NavFilter15) {
         let mount = DvlMounting {
             rot_body_from_dvl: UnitQuaternion::from_euler_angles(0.0, 0.0, 45f32.to_radians()),
             lever_arm_body_m: Vector3::new(0.5, 0.0, 0.3),
         };
+        let told = filter_mount.unwrap_or(mount);
         let mut cfg = NavConfig::default();
         cfg.init_sigma_vel_mps = 0.5;
         let init = NavInit {
@@ -256,7 +262,10 @@ mod tests {
                     fom_mps: Some(sigma),
                     gyro_radps: imu.gyro_radps,
                 };
-                let rep = nav.update_dvl(&m, &mount).unwrap();
+                let rep = nav.update_dvl(&m, &told).unwrap();
+                if filter_mount.is_some() {
+                    continue;
+                }
                 // The gate floor (state part capped at 16 R) holds the first reports out until
                 // `gate_release_after` consecutive rejections lift the cap (~2 s at 5 Hz).
                 assert!(rep.accepted || t < 5.0, "DVL update rejected at t = {t} s (nis {})", rep.nis);
@@ -268,7 +277,7 @@ mod tests {
         }
         let truth = Vector3::new(speed * libm::cosf(yaw), speed * libm::sinf(yaw), 0.0);
         let err = (nav.nominal().vel_ned_mps - truth).xy().norm();
-        if with_dvl {
+        if with_dvl && filter_mount.is_none() {
             assert!(max_err < 0.05, "horizontal velocity error up to {max_err} m/s after the first 10 s");
         }
         (err, nav)
@@ -290,6 +299,15 @@ mod tests {
         let (s, yaw_sigma) = (sol.sigma_vel_mps, sol.sigma_att_rad[2]);
         assert!(s[0] < 0.02, "along-track velocity sigma {s:?}");
         assert!(s[1] < 1.1 * yaw_sigma * 1.0 + 0.02, "cross-track velocity sigma {s:?}, yaw sigma {yaw_sigma}");
+    }
+
+    #[test]
+    fn the_mounting_matters() {
+        // Telling the filter the DVL is aligned with the body (it is turned 45 deg) leaves a
+        // large velocity error: the rotation is not something the filter absorbs.
+        let (err_wrong, _) = run_with(true, Some(DvlMounting::default()));
+        let (err_right, _) = straight_run(true);
+        assert!(err_wrong > 10.0 * err_right && err_wrong > 0.2, "wrong mounting {err_wrong} m/s vs {err_right} m/s");
     }
 
     #[test]
