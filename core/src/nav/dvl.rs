@@ -227,8 +227,7 @@ mod tests {
             lever_arm_body_m: Vector3::new(0.5, 0.0, 0.3),
         };
         let told = filter_mount.unwrap_or(mount);
-        let mut cfg = NavConfig::default();
-        cfg.init_sigma_vel_mps = 0.5;
+        let cfg = NavConfig { init_sigma_vel_mps: 0.5, ..NavConfig::default() };
         let init = NavInit {
             t_us: 0,
             att_nb: UnitQuaternion::identity(),

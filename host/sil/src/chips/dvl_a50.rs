@@ -3,8 +3,8 @@
 //!
 //! Protocol (written here from the document, independently of the firmware driver): Water
 //! Linked, "DVL A50/A125 serial protocol", serial protocol 2.6.x / 2.7.x,
-//! <https://docs.waterlinked.com/dvl/dvl-serial-protocol/>: sections "Overview" (8-N-1, `w`
-//! + direction + command + `,options` + `*xx` + line ending; this model ends lines with CR+LF),
+//! <https://docs.waterlinked.com/dvl/dvl-serial-protocol/>: sections "Overview" (8-N-1, `w`,
+//! direction, command, `,options`, `*xx`, line ending; this model ends lines with CR+LF),
 //! "Velocity report (wrz)", "Velocity report (wrs)", "Command overview" (`wra`, `wrn`, `wr?`,
 //! `wr!`, `wcv`, `wcp`, `wcs`, `wcx`), "Configuration over serial" (`range_mode` `auto` / `wt`,
 //! `acoustic_enabled`) and "Checksum" (CRC-8, poly 0x07, init 0, no reflection, no xor-out;
@@ -327,7 +327,7 @@ impl DvlA50Model {
                 (v_dvl - c_dvl, !alt.is_finite() || alt > WATER_TRACK_MIN_ALTITUDE_M)
             }
         };
-        let valid = valid && !(u_invalid < self.faults.invalid_probability);
+        let valid = valid && u_invalid >= self.faults.invalid_probability;
         let measured = if valid { vel * self.errors.scale + noise } else { Vector3::zeros() };
         // Validity and transmission times on the DVL clock.
         let slant = if alt.is_finite() { (alt.max(0.0) / BEAM_ANGLE_RAD.cos()).min(self.grade.max_altitude_m * 1.2) } else { 0.0 };
@@ -719,7 +719,7 @@ mod tests {
         }
         // The silent window left a gap of its length in the reports.
         let gap = ok.windows(2).map(|w| w[1].rx_us - w[0].rx_us).max().unwrap();
-        assert!(gap >= 5_000_000 && gap < 5_500_000, "longest gap {gap} us");
+        assert!((5_000_000..5_500_000).contains(&gap), "longest gap {gap} us");
     }
 
     #[test]
