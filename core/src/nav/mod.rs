@@ -3,7 +3,8 @@
 //! - [`state`]: nominal state and error-state layout (15 states, or 18 with Markov gyro drift).
 //! - [`strapdown`]: IMU-rate integration and the error transition used by the UKF predict.
 //! - one file per aiding sensor: [`heading`] (polarization compass), [`depth`], [`velocity`]
-//!   (DVL, body frame), [`position`] (position fix with covariance from the host).
+//!   (body frame), [`dvl`] (DVL velocity with mounting rotation and lever arm), [`position`]
+//!   (position fix with covariance from the host).
 //! - [`health`]: the `FilterHealth` telemetry message.
 //!
 //! Use from a firmware app:
@@ -23,6 +24,7 @@
 //! ```
 
 pub mod depth;
+pub mod dvl;
 mod filter;
 pub mod heading;
 pub mod health;

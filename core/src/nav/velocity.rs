@@ -1,8 +1,8 @@
 //! Body-frame velocity update (DVL bottom lock, or any velocity measured in FRD).
 //!
 //! `z = (Exp(phi) R)^T (v + dv)`: couples attitude (heading) and velocity errors, which is what
-//! bounds the horizontal drift between heading and position fixes. No lever arm (the DVL is
-//! assumed at the IMU; add `w x l` here if it is not).
+//! bounds the horizontal drift between heading and position fixes. No lever arm or mounting
+//! rotation: a DVL away from the IMU or turned against the body axes uses [`super::dvl`].
 
 use super::rotation::quat_from_rotation_vector;
 use nalgebra::{SVector, Vector3};

@@ -4,6 +4,7 @@
 //! |---|---|---|---|
 //! | [`icm42688`] | TDK ICM-42688-P 6-axis IMU | SPI (`SpiDevice`) | written here: no maintained embedded-hal 1.0 crate gives register-level range/ODR control, data-ready and saturation reporting without heap |
 //! | [`ads1115`] | 4 x TI ADS1115 16-bit ADCs (polarization photodiodes) | I2C 0x48..0x4B | `ads1x1x` 0.3 (eldruin) for the chip; this module only schedules the 16 single-shot conversions |
+//! | [`dvl_a50`] | Water Linked DVL-A50 Doppler velocity log | UART (`embedded_io` `Read + ReadReady`, `Write` for commands) | written here: Water Linked's serial protocol (`wrz` / `wrs` sentences, CRC-8) has no no_std crate |
 //! | [`ms5837`] | TE MS5837-30BA pressure (Blue Robotics Bar30) | I2C 0x76 | written here: no maintained no_std embedded-hal 1.0 crate does the PROM CRC-4 check and the datasheet's second-order compensation |
 //!
 //! Style (eldruin's drivers): each driver owns its bus handle (share one bus between several
@@ -22,6 +23,7 @@
 //! slow conversion never stalls the IMU task.
 
 pub mod ads1115;
+pub mod dvl_a50;
 pub mod icm42688;
 pub mod ms5837;
 
@@ -42,6 +44,9 @@ pub enum Error<E> {
     NotReady,
     /// An argument or a reading outside what the chip supports.
     InvalidInput,
+    /// A serial sentence that is not one of the protocol's (framing, fields, numbers, or a line
+    /// too long for the driver's buffer).
+    Malformed,
 }
 
 /// The bus error is shown with `Debug` (embedded-hal bus errors need not implement `Display`).
@@ -88,6 +93,14 @@ pub fn i2c_fault_kind<E: embedded_hal::i2c::Error>(e: &E) -> FaultKind {
     }
 }
 
+/// Map any `embedded_io` (UART) error through its [`embedded_io::ErrorKind`].
+pub fn uart_fault_kind<E: embedded_io::Error>(e: &E) -> FaultKind {
+    match e.kind() {
+        embedded_io::ErrorKind::TimedOut => FaultKind::BusTimeout,
+        _ => FaultKind::BusOther,
+    }
+}
+
 impl<E: BusErrorKind> Error<E> {
     /// The telemetry fault kind for this error.
     pub fn fault_kind(&self) -> FaultKind {
@@ -97,6 +110,7 @@ impl<E: BusErrorKind> Error<E> {
             Error::BadCrc { .. } => FaultKind::BadCrc,
             Error::NotReady => FaultKind::BusTimeout,
             Error::InvalidInput => FaultKind::NonFinite,
+            Error::Malformed => FaultKind::CorruptFrame,
         }
     }
 }
@@ -110,6 +124,7 @@ impl<E> Error<E> {
             Error::BadCrc { expected, computed } => Error::BadCrc { expected, computed },
             Error::NotReady => Error::NotReady,
             Error::InvalidInput => Error::InvalidInput,
+            Error::Malformed => Error::Malformed,
         }
     }
 }

@@ -12,6 +12,7 @@
 //! | [`icm42688::Icm42688Model`] | ICM-42688-P IMU | SPI | [`icm42688::ImuInput`] (body FRD rates / specific force, temperature) |
 //! | [`ads1115::Ads1115Model`] | ADS1115 ADC | I2C 0x48..0x4B | volts on AIN0..AIN3 |
 //! | [`ms5837::Ms5837Model`] | MS5837-30BA | I2C 0x76 | [`ms5837::PressureInput`] (absolute Pa, deg C) |
+//! | [`dvl_a50::DvlA50Model`] | Water Linked DVL-A50 | UART (byte stream; not routed by [`ChipSet`] yet) | [`dvl_a50::DvlInput`] (body velocity and rate, altitude, current) |
 //!
 //! Time: every call carries `t_us`, the firmware's timestamp of the transaction (the bridge's
 //! `BusRequest::t_us`), so a run is deterministic whatever the host's speed.
@@ -36,6 +37,7 @@
 //! ```
 
 pub mod ads1115;
+pub mod dvl_a50;
 pub mod icm42688;
 pub mod ms5837;
 
