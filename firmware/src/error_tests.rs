@@ -35,12 +35,13 @@ fn bus_errors() {
 
 #[test]
 fn driver_error() {
-    let all: [Error<ErrorKind>; 5] = [
+    let all: [Error<ErrorKind>; 6] = [
         Error::Bus(ErrorKind::Bus),
         Error::IdentityMismatch { expected: 0x47, found: 0x6f },
         Error::BadCrc { expected: 9, computed: 3 },
         Error::NotReady,
         Error::InvalidInput,
+        Error::Malformed,
     ];
     let refs: Vec<&dyn core::error::Error> = all.iter().map(|e| e as &dyn core::error::Error).collect();
     assert_distinct_messages("drivers::Error", &refs);

@@ -62,6 +62,7 @@ impl<E: core::fmt::Debug> core::fmt::Display for Error<E> {
             }
             Error::NotReady => f.write_str("chip has no valid result yet (conversion not finished or not powered up)"),
             Error::InvalidInput => f.write_str("argument or reading outside what the chip supports"),
+            Error::Malformed => f.write_str("serial sentence not in the protocol (framing, fields, numbers or an overlong line)"),
         }
     }
 }

@@ -27,7 +27,8 @@ fn simulated_log_replays() {
 
     // A record without a known type is an error naming the line.
     std::fs::write(&log, "{\"type\":\"sonar\",\"t_s\":0}\n").unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["fgo", "replay", "--input"]).arg(&log).arg("--out").arg(&out).output().unwrap();
+    let o =
+        Command::new(env!("CARGO_BIN_EXE_subnav")).args(["fgo", "replay", "--input"]).arg(&log).arg("--out").arg(&out).output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("line 1") && err.contains("sonar"), "{err}");
 }
