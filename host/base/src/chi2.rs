@@ -101,6 +101,13 @@ pub fn chi2_quantile(dof: usize, p: f64) -> Result<f64, Chi2Error> {
     Ok(0.5 * (lo + hi))
 }
 
+/// The 99 % quantile for 2 degrees of freedom (9.2103): the gate of the 2-D position checks.
+pub fn chi2_2_99() -> f64 {
+    static Q: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    // -2 ln(0.01) in closed form if the bisection were ever refused (it is not: dof 2, p 0.99).
+    *Q.get_or_init(|| chi2_quantile(2, 0.99).unwrap_or(9.210_340_371_976_184))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -114,6 +121,8 @@ mod tests {
         assert!((chi2_quantile(1, 0.95).unwrap() - 3.841_458_8).abs() < 1e-6);
         assert!((chi2_quantile(6, 0.999).unwrap() - 22.457_744).abs() < 1e-5);
         assert!(chi2_quantile(3, 1.0).is_err());
+        // 2 dof has the closed form -2 ln(1 - p)
+        assert!((chi2_2_99() - -2.0 * 0.01f64.ln()).abs() < 1e-9);
     }
 
     #[test]

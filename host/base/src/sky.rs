@@ -24,7 +24,8 @@
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
-use subnav_core::compass::{CHANNELS, ChannelCal, NoiseModel, UnitModel, unit::ring_geometry};
+use subnav_core::compass::{CHANNELS, ChannelCal, UnitModel, unit::ring_geometry};
+use subnav_core::head;
 
 /// Optical properties of the water column and the surface.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -80,33 +81,36 @@ pub struct SensorErrors {
 }
 
 impl Default for SensorErrors {
+    /// The sensor head's photodiode front end and exposure (`subnav_core::head`), and our
+    /// calibration residuals.
     fn default() -> Self {
         SensorErrors {
-            electrons_per_count: 100.0,
-            read_sigma_counts: 3.0,
+            electrons_per_count: head::PHOTODIODE_NOISE.electrons_per_count as f64,
+            read_sigma_counts: head::PHOTODIODE_NOISE.read_sigma_counts as f64,
             gain_rel: 1e-3,
             offset_counts: 1.0,
             angle_rad: 0.05f64.to_radians(),
             extinction_rel: 0.05,
-            exposure_counts: 20_000.0,
+            exposure_counts: head::POLARIZATION_EXPOSURE_COUNTS as f64,
         }
     }
 }
 
-/// Nominal calibration of the simulated units.
-pub const NOMINAL_GAIN: f32 = 1.0;
-pub const NOMINAL_OFFSET: f32 = 300.0;
-pub const NOMINAL_ER: f32 = 500.0;
+/// Nominal calibration of the simulated units: the sensor head's (`subnav_core::head`).
+pub const NOMINAL_GAIN: f32 = head::POLARIZATION_GAIN_COUNTS;
+pub const NOMINAL_OFFSET: f32 = head::POLARIZATION_OFFSET_COUNTS;
+pub const NOMINAL_ER: f32 = head::POLARIZER_EXTINCTION_RATIO;
 
-/// The default sensor head: a ring of `n` units looking 15 deg above the body horizontal
-/// (outside the Snell window), nominal 0/45/90/135 deg polarizers. Intensities are in counts
-/// (gain 1 count per count of the exposure-normalized field).
+/// A sensor head with `n` units: the head's ring geometry (`subnav_core::head`: looking
+/// [`head::POLARIZATION_UNIT_ELEVATION_RAD`] above the body horizontal, outside the Snell window),
+/// nominal 0/45/90/135 deg polarizers, the head's calibration and photodiode noise. Intensities
+/// are in counts (gain 1 count per count of the exposure-normalized field). `n =
+/// head::POLARIZATION_UNITS` gives `head::polarization_units()`.
 pub fn default_units(n: usize) -> Vec<UnitModel> {
-    let noise = NoiseModel { read_sigma_counts: 3.0, electrons_per_count: 100.0, saturation_counts: 32_000 };
     (0..n)
         .filter_map(|i| {
-            let (v, a) = ring_geometry(i, n, 15f32.to_radians());
-            UnitModel::nominal(v, a, NOMINAL_GAIN, NOMINAL_OFFSET, NOMINAL_ER, noise).ok()
+            let (v, a) = ring_geometry(i, n, head::POLARIZATION_UNIT_ELEVATION_RAD);
+            UnitModel::nominal(v, a, NOMINAL_GAIN, NOMINAL_OFFSET, NOMINAL_ER, head::PHOTODIODE_NOISE).ok()
         })
         .collect()
 }

@@ -4,7 +4,7 @@
 //! `ramp_s`, so the IMU sees them: an instantaneous speed step is invisible to a sampled
 //! accelerometer and would make any inertial solution wrong by the step from then on.
 //! Kinematics are exact for this motion: body rates `[0, 0, r]`, specific force
-//! `R_bn^T (a_n - g_n)`.
+//! `R_nb^T (a_n - g_n)` ([`crate::imu::specific_force`]).
 //! NED frame, metres from the origin; body FRD.
 
 use nalgebra::{UnitQuaternion, Vector3};
@@ -175,7 +175,7 @@ impl Trajectory {
         let acc = Vector3::new(seg.au * cy - u * seg.r * sy, seg.au * sy + u * seg.r * cy, seg.aw);
         let att = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
         let g = Vector3::new(0.0, 0.0, GRAVITY_MPS2);
-        let f_b = att.inverse() * (acc - g);
+        let f_b = crate::imu::specific_force(&att, &acc, &g);
         Truth {
             t_s,
             pos_ned_m: p,

@@ -19,6 +19,7 @@
 
 use super::{NavSample, V2};
 use nalgebra::{DMatrix, DVector, Matrix2};
+use subnav_base::chi2::chi2_2_99;
 
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct DriftConfig {
@@ -88,7 +89,7 @@ impl DriftIndex {
 
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct VoteConfig {
-    /// Chi-square gate for two closures to agree (2 dof, 99 %: 9.21).
+    /// Chi-square gate for two closures to agree (2 dof, 99 %: 9.2103, `subnav_base::chi2`).
     pub chi2_gate: f64,
     /// Only closures within this drift standard deviation of each other vote (m).
     pub max_neighbour_sigma_m: f64,
@@ -97,7 +98,7 @@ pub struct VoteConfig {
 
 impl Default for VoteConfig {
     fn default() -> Self {
-        Self { chi2_gate: 9.21, max_neighbour_sigma_m: 6.0, min_votes: 1 }
+        Self { chi2_gate: chi2_2_99(), max_neighbour_sigma_m: 6.0, min_votes: 1 }
     }
 }
 

@@ -114,7 +114,7 @@ pub fn interpolate(nav: &[NavSample], t: f64) -> Option<NavSample> {
     }
     let (a, b) = (&nav[k - 1], &nav[k]);
     let w = (t - a.t_s) / (b.t_s - a.t_s);
-    let dh = (b.heading_rad - a.heading_rad + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+    let dh = subnav_base::wrap_pi(b.heading_rad - a.heading_rad);
     Some(NavSample {
         t_s: t,
         north_m: a.north_m + w * (b.north_m - a.north_m),

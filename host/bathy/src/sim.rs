@@ -142,10 +142,7 @@ fn gauss(rng: &mut impl Rng) -> f64 {
     rng.sample(StandardNormal)
 }
 
-fn wrap(a: f64) -> f64 {
-    let t = std::f64::consts::TAU;
-    a - t * ((a + std::f64::consts::PI) / t).floor()
-}
+use subnav_base::wrap_pi as wrap;
 
 /// Cast a beam from the vehicle into the terrain; returns (true range, hit point).
 fn ray_cast(terrain: &Grid, n: f64, e: f64, depth: f64, heading: f64, beta: f64, max_range: f64) -> Option<(f64, Point)> {

@@ -81,9 +81,8 @@ pub struct McResult {
     pub bins: Vec<ElevationBin>,
 }
 
-pub fn wrap_pi(x: f64) -> f64 {
-    (x + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
-}
+/// Wrap an angle to (-pi, pi] (the one wrap, `subnav_core::ukf::wrap_pi`).
+pub use subnav_base::wrap_pi;
 
 /// A random instant and place with the sun's apparent elevation in [lo, hi] deg.
 pub fn draw_sun<R: Rng>(rng: &mut R, lo_deg: f64, hi_deg: f64) -> (i64, Observer, ephemeris::SunPosition) {

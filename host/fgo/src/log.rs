@@ -13,12 +13,8 @@ use serde::{Deserialize, Serialize};
 use super::FgoError;
 use super::preintegration::ImuParams;
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ImuSample {
-    pub t_s: f64,
-    pub acc_mps2: [f64; 3],
-    pub gyro_radps: [f64; 3],
-}
+/// An IMU record: the host simulators' sample (serialized `acc_mps2` and `gyro_radps` as arrays).
+pub use subnav_base::imu::ImuSample;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DvlObs {
@@ -125,7 +121,7 @@ impl SensorLog {
             }
         }
         for (i, s) in self.imu.iter().enumerate() {
-            if !s.t_s.is_finite() || !finite(&s.acc_mps2) || !finite(&s.gyro_radps) {
+            if !s.t_s.is_finite() || !finite(s.acc_mps2.as_slice()) || !finite(s.gyro_radps.as_slice()) {
                 return Err(FgoError::Input(format!("IMU sample {i} has NaN/inf")));
             }
         }

@@ -3,7 +3,9 @@
 //! bottom-lock losses and bursts of abnormal velocities, USBL every `usbl_period_s` with the
 //! acoustic delay (slant range / 1500 m/s + processing), packet loss and multipath outliers.
 //! The truth is integrated with piecewise-constant inputs (`R Exp(w dt)` per IMU step), so an
-//! error-free IMU reproduces it up to the tangent preintegration's own second-order error. `abnormal_fraction` of the delivered DVL and USBL
+//! error-free IMU reproduces it up to the tangent preintegration's own second-order error. The
+//! inputs come from `subnav_base::imu` (turns from a [`TurnSchedule`], specific force from the
+//! body motion, errors of [`imu_grade`] by [`ImuErrors`]). `abnormal_fraction` of the delivered DVL and USBL
 //! observations are abnormal (the tests' "10 %").
 
 use nalgebra::Vector3;
@@ -14,7 +16,20 @@ use rand_distr::{Distribution, Normal};
 use super::log::{DvlObs, ImuSample, LogConfig, PriorConfig, SensorLog, UsblObs};
 use super::preintegration::ImuParams;
 use super::state::{ImuBias, NavState, NodeState};
+use subnav_base::imu::{self, DrawOrder, ImuErrors, ImuGrade, TurnProfile, TurnSchedule};
 use subnav_base::so3;
+
+/// The simulated IMU's grade: the navigator's noise model (`ImuParams`) and the turn-on biases.
+pub fn imu_grade(imu: &ImuParams) -> ImuGrade {
+    ImuGrade {
+        gyro_noise_density: imu.gyro_noise_density,
+        accel_noise_density: imu.acc_noise_density,
+        gyro_bias_rw: imu.gyro_bias_rw,
+        accel_bias_rw: imu.acc_bias_rw,
+        gyro_bias_sigma: 2e-4,
+        accel_bias_sigma: 0.01,
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SimConfig {
@@ -109,30 +124,28 @@ pub fn simulate(cfg: &SimConfig) -> Simulation {
     let heading0 = rng.random_range(0.0..std::f64::consts::TAU);
     let r0 = so3::exp(&Vector3::new(0.0, 0.0, heading0));
     let mut x = NavState::new(r0, Vector3::new(50.0, -30.0, -40.0), r0 * v_b);
-    let mut bias = ImuBias::new(Vector3::from_fn(|_, _| std(0.01).sample(&mut rng)), Vector3::from_fn(|_, _| std(2e-4).sample(&mut rng)));
-    let start = NodeState::new(x, bias);
-    let (leg, turn) = (60.0, 20.0);
+    let grade = imu_grade(&imu);
+    let (bg, ba) = ImuErrors::draw_turn_on(&grade, &mut rng, DrawOrder::AccelFirst);
+    let mut errors = ImuErrors::new(grade, bg, ba, grade.white_sigmas(dt));
+    let start = NodeState::new(x, ImuBias::new(ba, bg));
+    // Legs of 60 s, 180-degree turns of 20 s.
+    let turns = TurnSchedule::of_duration(60.0, 20.0, TurnProfile::Constant);
     let mut truth = Truth { t_s: Vec::with_capacity(n), states: Vec::with_capacity(n), inputs: Vec::with_capacity(n), gravity: g };
     let mut samples = Vec::with_capacity(n);
-    let (sa, sg) = (imu.acc_noise_density / dt.sqrt(), imu.gyro_noise_density / dt.sqrt());
     for k in 0..n {
         let t = k as f64 * dt;
-        let phase = t % (leg + turn);
-        let lap = (t / (leg + turn)).floor() as i64;
-        let yaw_rate = if phase >= leg { std::f64::consts::PI / turn * if lap % 2 == 0 { 1.0 } else { -1.0 } } else { 0.0 };
-        let w = Vector3::new(0.03 * (0.5 * t).sin(), 0.02 * (0.3 * t).cos(), yaw_rate + 0.01 * (0.2 * t).sin());
-        // hold body velocity ~ (u, 0, 0) plus a slow heave
+        let w = Vector3::new(0.03 * (0.5 * t).sin(), 0.02 * (0.3 * t).cos(), turns.yaw_rate(t) + 0.01 * (0.2 * t).sin());
+        // hold body velocity ~ (u, 0, 0) plus a slow heave (its derivative is left out: the truth
+        // integrates these inputs, so it stays consistent with them)
         let vb = v_b + Vector3::new(0.0, 0.0, 0.05 * (0.05 * t).sin());
-        let f = w.cross(&vb) - x.rot_enu_flu.transpose() * g;
+        let f = imu::specific_force_body(&x.rot_enu_flu, &w, &vb, &Vector3::zeros(), &g);
         truth.t_s.push(t);
-        truth.states.push(NodeState::new(x, bias));
+        truth.states.push(NodeState::new(x, ImuBias::new(errors.bias_acc_mps2, errors.bias_gyro_radps)));
         truth.inputs.push((f, w));
-        let acc = f + bias.acc_mps2 + Vector3::from_fn(|_, _| std(sa).sample(&mut rng));
-        let gyro = w + bias.gyro_radps + Vector3::from_fn(|_, _| std(sg).sample(&mut rng));
+        let (gyro, acc) = errors.measure(&w, &f, &mut rng, DrawOrder::AccelFirst);
         samples.push(ImuSample { t_s: t, acc_mps2: acc.into(), gyro_radps: gyro.into() });
         x = step(&x, &f, &w, dt, &g);
-        bias.acc_mps2 += Vector3::from_fn(|_, _| std(imu.acc_bias_rw * dt.sqrt()).sample(&mut rng));
-        bias.gyro_radps += Vector3::from_fn(|_, _| std(imu.gyro_bias_rw * dt.sqrt()).sample(&mut rng));
+        errors.walk(&mut rng, dt, DrawOrder::AccelFirst);
     }
     let t_end = (n - 1) as f64 * dt;
 

@@ -26,13 +26,8 @@ pub fn gravity_w() -> Vector3<f64> {
 /// Random walk of the sonar speed-scale state, 1/sqrt(s).
 pub const SONAR_SCALE_WALK: f64 = 1e-4;
 
-/// One IMU reading (body frame FRD).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ImuSample {
-    pub t_s: f64,
-    pub gyro_radps: Vector3<f64>,
-    pub acc_mps2: Vector3<f64>,
-}
+/// One IMU reading (body frame FRD): the host simulators' sample.
+pub use subnav_base::imu::ImuSample;
 
 /// IMU noise (continuous-time densities).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

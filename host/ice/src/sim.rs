@@ -11,7 +11,8 @@
 //! with FAST + KLT (`frontend::StereoTracker`). The other sensors are the same draws either way.
 //!
 //! Truth kinematics are sampled at the IMU rate with `R_k+1 = R_k Exp(w_k dt)` exactly, and the
-//! IMU reports `w_k` and `f_k = R_k^T (a_k - g)`.
+//! IMU reports `w_k` and `f_k = R_k^T (a_k - g)` (`subnav_base::imu`: turns from a
+//! [`TurnSchedule`], errors of [`SimConfig::imu_grade`] by [`ImuErrors`]).
 
 use std::collections::HashMap;
 
@@ -28,7 +29,10 @@ use super::phasecorr::Gray;
 use super::propagation::{ImuNoise, ImuSample, gravity_w};
 use super::render::{StereoRenderer, WaterConfig};
 use super::sonar::SonarConfig;
-use subnav_base::so3;
+use subnav_base::imu::{self, DrawOrder, ImuErrors, ImuGrade, TurnProfile, TurnSchedule};
+
+/// Turn-on bias of the simulated IMU: uniform in +-this (gyro rad/s, accelerometer m/s^2).
+pub const TURN_ON_BIAS_HALF_WIDTH: (f64, f64) = (2e-4, 0.02);
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct SimConfig {
@@ -120,25 +124,18 @@ fn cell_points(cx: i64, cy: i64, seed: u64, per_cell: usize, salt: u64) -> impl 
     })
 }
 
-/// The trajectory's yaw rate at time `t` after the still period and ramp (lawnmower turns).
-struct Path {
-    straight_s: f64,
-    turn_s: f64,
-}
-
-impl Path {
-    fn yaw_rate(&self, tau: f64) -> f64 {
-        if tau <= 0.0 {
-            return 0.0;
+impl SimConfig {
+    /// The simulated IMU's grade: the odometry's noise model ([`ImuNoise`]) and the turn-on
+    /// bias (uniform in +-[`TURN_ON_BIAS_HALF_WIDTH`], as 1-sigma).
+    pub fn imu_grade(&self) -> ImuGrade {
+        ImuGrade {
+            gyro_noise_density: self.imu.gyro_radps_rthz,
+            accel_noise_density: self.imu.acc_mps2_rthz,
+            gyro_bias_rw: self.imu.gyro_bias_walk,
+            accel_bias_rw: self.imu.acc_bias_walk,
+            gyro_bias_sigma: TURN_ON_BIAS_HALF_WIDTH.0 / 3f64.sqrt(),
+            accel_bias_sigma: TURN_ON_BIAS_HALF_WIDTH.1 / 3f64.sqrt(),
         }
-        let period = self.straight_s + self.turn_s;
-        let k = (tau / period).floor();
-        let u = tau - k * period - self.straight_s;
-        if u < 0.0 {
-            return 0.0;
-        }
-        let sign = if (k as i64) % 2 == 0 { 1.0 } else { -1.0 };
-        sign * std::f64::consts::PI / self.turn_s * (1.0 - (2.0 * std::f64::consts::PI * u / self.turn_s).cos())
     }
 }
 
@@ -146,7 +143,8 @@ pub fn simulate(cfg: &SimConfig) -> Dataset {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let dt = 1.0 / cfg.imu_hz;
     let ramp_s = 5.0;
-    let path = Path { straight_s: cfg.leg_m / cfg.speed_mps, turn_s: 20.0 };
+    // Lawnmower turns of 20 s with a smooth (raised-cosine) yaw rate, after the still period and ramp.
+    let path = TurnSchedule::of_duration(cfg.leg_m / cfg.speed_mps, 20.0, TurnProfile::RaisedCosine);
     let speed_at = |t: f64| {
         let u = ((t - cfg.still_s) / ramp_s).clamp(0.0, 1.0);
         cfg.speed_mps * u * u * (3.0 - 2.0 * u)
@@ -196,27 +194,22 @@ pub fn simulate(cfg: &SimConfig) -> Dataset {
     }
 
     // IMU.
-    let n_g = Normal::new(0.0, cfg.imu.gyro_radps_rthz / dt.sqrt()).unwrap_or(Normal::new(0.0, 1e-12).expect("valid"));
-    let n_a = Normal::new(0.0, cfg.imu.acc_mps2_rthz / dt.sqrt()).unwrap_or(Normal::new(0.0, 1e-12).expect("valid"));
-    let w_g = Normal::new(0.0, cfg.imu.gyro_bias_walk * dt.sqrt()).unwrap_or(Normal::new(0.0, 1e-12).expect("valid"));
-    let w_a = Normal::new(0.0, cfg.imu.acc_bias_walk * dt.sqrt()).unwrap_or(Normal::new(0.0, 1e-12).expect("valid"));
-    let mut bg = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0) * 2e-4);
-    let mut ba = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0) * 0.02);
+    let grade = cfg.imu_grade();
+    let bg = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0) * TURN_ON_BIAS_HALF_WIDTH.0);
+    let ba = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0) * TURN_ON_BIAS_HALF_WIDTH.1);
+    let mut errors = ImuErrors::new(grade, bg, ba, grade.white_sigmas(dt));
     let mut imu = Vec::with_capacity(truth.len());
     for i in 0..truth.len() {
         let (w, a) = if i + 1 < truth.len() {
             let (a0, a1) = (&truth[i], &truth[i + 1]);
-            let w = so3::log(&(a0.rot.transpose() * a1.rot)) / dt;
             let acc_w = (a1.vel_w_mps - a0.vel_w_mps) / dt;
-            (w, a0.rot.transpose() * (acc_w - gravity_w()))
+            (imu::body_rate_between(&a0.rot, &a1.rot, dt), imu::specific_force(&a0.rot, &acc_w, &gravity_w()))
         } else {
-            (Vector3::zeros(), truth[i].rot.transpose() * (-gravity_w()))
+            (Vector3::zeros(), imu::specific_force(&truth[i].rot, &Vector3::zeros(), &gravity_w()))
         };
-        let noise_g = Vector3::from_fn(|_, _| n_g.sample(&mut rng));
-        let noise_a = Vector3::from_fn(|_, _| n_a.sample(&mut rng));
-        imu.push(ImuSample { t_s: truth[i].t_s, gyro_radps: w + bg + noise_g, acc_mps2: a + ba + noise_a });
-        bg += Vector3::from_fn(|_, _| w_g.sample(&mut rng));
-        ba += Vector3::from_fn(|_, _| w_a.sample(&mut rng));
+        let (gyro_radps, acc_mps2) = errors.measure(&w, &a, &mut rng, DrawOrder::GyroFirst);
+        imu.push(ImuSample { t_s: truth[i].t_s, gyro_radps, acc_mps2 });
+        errors.walk(&mut rng, dt, DrawOrder::GyroFirst);
     }
 
     // Stereo features.

@@ -10,7 +10,6 @@
 pub mod dive;
 pub mod plot;
 
-use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -26,11 +25,8 @@ pub fn yaw_of(q: [f32; 4]) -> f64 {
     (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
 }
 
-/// Wrap an angle to (-pi, pi].
-pub fn wrap(a: f64) -> f64 {
-    let r = (a + PI).rem_euclid(2.0 * PI) - PI;
-    if r <= -PI { r + 2.0 * PI } else { r }
-}
+/// Wrap an angle to (-pi, pi] (the one wrap, `subnav_core::ukf::wrap_pi`).
+pub use subnav_core::ukf::wrap_pi as wrap;
 
 /// One navigation solution as plotted.
 #[derive(Debug, Clone, Copy, Serialize)]

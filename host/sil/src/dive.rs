@@ -122,7 +122,7 @@ pub fn truth_csv(sc: &Scenario, step_s: f64) -> String {
     for k in 0..=n {
         let t = k as f64 * step_s;
         let tr = traj.at(t);
-        let yaw = (tr.yaw_rad + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+        let yaw = subnav_base::wrap_pi(tr.yaw_rad);
         out.push_str(&format!("{t:.3},{:.4},{:.4},{:.4},{yaw:.6}\n", tr.pos_ned_m.x, tr.pos_ned_m.y, tr.pos_ned_m.z));
     }
     out

@@ -12,13 +12,14 @@ use std::sync::Arc;
 use nalgebra::{Rotation3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use rand_distr::Distribution;
 use serde::{Deserialize, Serialize};
 use subnav_core::ephemeris::{self, Atmosphere, Observer};
 use subnav_core::head;
 use subnav_wire::bridge::{BusRequest, BusResponse};
 
 use crate::chips::{Ads1115Model, ChipSet, Icm42688Model, ImuInput, Ms5837Model, PressureInput};
+use subnav_base::imu::{DrawOrder, ImuErrors, ImuGrade, normal};
 use subnav_base::sky::{self as polar, Field, SensorErrors, Water};
 use subnav_base::trajectory::{Lawnmower, Trajectory};
 use subnav_link::qemu::BusHandler;
@@ -164,6 +165,40 @@ impl Scenario {
     }
 }
 
+/// The IMU's physical input over the dive (what the ICM-42688-P model samples): the truth's
+/// specific force and body rate plus turn-on bias, bias random walk and white noise of the
+/// `subnav_core::head` grade (white noise scaled by [`Scenario::imu_noise_scale`]), and the
+/// scenario's stuck-axis fault. Seeded: the same stream for a seed and the same query times.
+pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> ImuInput + Send + 'static {
+    // IMU: truth + turn-on bias + bias random walk + white noise (grade from subnav_core::head).
+    let grade = ImuGrade::from(head::IMU_ICM42688P);
+    let scale = sc.imu_noise_scale;
+    let rate = head::IMU_RATE_HZ as f64;
+    let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0x1111);
+    let (gyro_bias0, accel_bias0) = ImuErrors::draw_turn_on(&grade, &mut rng, DrawOrder::GyroFirst);
+    let white = (scale * grade.gyro_noise_density * rate.sqrt(), scale * grade.accel_noise_density * rate.sqrt());
+    let mut errors = ImuErrors::new(grade, gyro_bias0, accel_bias0, white);
+    let mut last_t = 0.0f64;
+    let faults = sc.faults;
+    let mut frozen: Option<[f64; 6]> = None;
+    move |t_us| {
+        let t = t_us as f64 * 1e-6;
+        let dt = (t - last_t).max(0.0);
+        last_t = t;
+        errors.walk(&mut rng, dt, DrawOrder::GyroFirst);
+        let truth = traj.at(t);
+        let (gyro, accel) = errors.measure(&truth.gyro_radps, &truth.specific_force_mps2, &mut rng, DrawOrder::PerAxisAccelFirst);
+        let mut v = [accel.x, accel.y, accel.z, gyro.x, gyro.y, gyro.z];
+        if let Some((t0, axis)) = faults.imu_stuck_axis {
+            if t >= t0 && axis < 6 {
+                let f = frozen.get_or_insert(v);
+                v[axis] = f[axis];
+            }
+        }
+        ImuInput { specific_force_mps2: [v[0], v[1], v[2]], gyro_radps: [v[3], v[4], v[5]], temp_c: 12.0 }
+    }
+}
+
 /// The chips and their inputs. Implements [`BusHandler`].
 pub struct SimHead {
     chips: ChipSet,
@@ -175,53 +210,12 @@ impl BusHandler for SimHead {
     }
 }
 
-fn normal(s: f64) -> Normal<f64> {
-    Normal::new(0.0, s.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero sigma is valid"))
-}
-
 impl SimHead {
     pub fn new(sc: &Scenario) -> Self {
         let traj = Arc::new(sc.trajectory());
         let mut chips = ChipSet::new();
 
-        // IMU: truth + turn-on bias + bias random walk + white noise (grade from shared::head).
-        let g = head::IMU_ICM42688P;
-        let scale = sc.imu_noise_scale;
-        let rate = head::IMU_RATE_HZ as f64;
-        let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0x1111);
-        let gyro_bias0: [f64; 3] = std::array::from_fn(|_| normal(g.gyro_bias_sigma as f64).sample(&mut rng));
-        let accel_bias0: [f64; 3] = std::array::from_fn(|_| normal(g.accel_bias_sigma as f64).sample(&mut rng));
-        let (mut gb, mut ab) = (gyro_bias0, accel_bias0);
-        let mut last_t = 0.0f64;
-        let faults = sc.faults;
-        let mut frozen: Option<[f64; 6]> = None;
-        let tr = traj.clone();
-        let imu = Icm42688Model::new(move |t_us| {
-            let t = t_us as f64 * 1e-6;
-            let dt = (t - last_t).max(0.0);
-            last_t = t;
-            for b in &mut gb {
-                *b += normal(g.gyro_bias_rw as f64 * dt.sqrt()).sample(&mut rng);
-            }
-            for b in &mut ab {
-                *b += normal(g.accel_bias_rw as f64 * dt.sqrt()).sample(&mut rng);
-            }
-            let truth = tr.at(t);
-            let wg = normal(scale * g.gyro_arw as f64 * rate.sqrt());
-            let wa = normal(scale * g.accel_vrw as f64 * rate.sqrt());
-            let mut v = [0.0; 6];
-            for k in 0..3 {
-                v[k] = truth.specific_force_mps2[k] + ab[k] + wa.sample(&mut rng);
-                v[3 + k] = truth.gyro_radps[k] + gb[k] + wg.sample(&mut rng);
-            }
-            if let Some((t0, axis)) = faults.imu_stuck_axis {
-                if t >= t0 && axis < 6 {
-                    let f = frozen.get_or_insert(v);
-                    v[axis] = f[axis];
-                }
-            }
-            ImuInput { specific_force_mps2: [v[0], v[1], v[2]], gyro_radps: [v[3], v[4], v[5]], temp_c: 12.0 }
-        });
+        let imu = Icm42688Model::new(imu_input(sc, traj.clone()));
         let mut imu = imu;
         if let Some((a, b)) = sc.faults.imu_nack_s {
             imu.faults.nack_window_us = Some(((a * 1e6) as u64, (b * 1e6) as u64));
@@ -235,7 +229,7 @@ impl SimHead {
         water.c_per_m *= sc.turbidity;
         water.b_per_m *= sc.turbidity;
         water.kd_per_m *= sc.turbidity;
-        let err = SensorErrors { exposure_counts: head::POLARIZATION_EXPOSURE_COUNTS as f64, ..SensorErrors::default() };
+        let err = SensorErrors::default(); // the head's photodiode noise and exposure (subnav_core::head)
         let mut cal_rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0x2222);
         let true_cal: Vec<_> = units.iter().map(|u| polar::true_channels(u, &err, &mut cal_rng)).collect();
         let volts_per_count = 4.096 / 32768.0;

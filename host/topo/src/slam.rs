@@ -31,8 +31,8 @@ pub const NS: usize = 2 * NX + 1;
 const _: () = assert!(NX <= 64, "the shared UKF's fading mask is a u64");
 /// Variance of a free node slot (m^2).
 const FREE_VAR: f64 = 1e4;
-/// Chi-square 99 % for 2 degrees of freedom.
-pub const CHI2_2_99: f64 = 9.21;
+/// Chi-square 99 % for 2 degrees of freedom (9.2103, `subnav_base::chi2`).
+pub use subnav_base::chi2::chi2_2_99;
 
 /// Filter tuning.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -262,7 +262,7 @@ mod tests {
                 let var_before = f.position_cov()[(0, 0)];
                 // Truly back at node a: the re-observation pulls the estimate toward it.
                 let d2 = f.mahalanobis2(a, 0.25).unwrap();
-                assert!(d2 < CHI2_2_99, "gate {d2}");
+                assert!(d2 < chi2_2_99(), "gate {d2}");
                 let rep = f.observe(a, 0.25).unwrap();
                 assert!(rep.accepted);
                 assert!(f.position()[0] < 1.0, "{:?}", f.position());
@@ -272,7 +272,7 @@ mod tests {
                 for _ in 0..10 {
                     f.predict([3.0, 0.0], 1.0).unwrap();
                 }
-                assert!(f.mahalanobis2(b, 0.25).unwrap() > CHI2_2_99);
+                assert!(f.mahalanobis2(b, 0.25).unwrap() > chi2_2_99());
                 // Merge frees a slot; a fix carries the covariance.
                 let free = f.free_slots();
                 f.merge(a, b, 0.25).unwrap();

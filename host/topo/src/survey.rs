@@ -31,7 +31,7 @@ use subnav_wire::Downlink;
 
 use super::map::{Node, TopoMap};
 use super::scene::{Scene, SceneConfig, coastal_water};
-use super::slam::{CHI2_2_99, SlamFilter, SlamTuning};
+use super::slam::{SlamFilter, SlamTuning, chi2_2_99};
 use crate::lmnn::LmnnConfig;
 use crate::polar_image::{N_FEATURES, demosaic, features, stokes};
 
@@ -426,7 +426,7 @@ impl<'a> Mapper<'a> {
                         }
                         _ => f64::INFINITY,
                     };
-                    let close = (b - a) > 2 && gate < CHI2_2_99;
+                    let close = (b - a) > 2 && gate < chi2_2_99();
                     if close
                         && map.node_distance(a, b).is_some_and(|d| d < map.match_threshold)
                         && filt.merge(sa, sb, cfg.tuning.node_sigma_m.powi(2) * 2.0 + fix_r).is_ok()
@@ -463,7 +463,7 @@ impl<'a> Mapper<'a> {
                 rep.appearance_correct += is_correct(c.node, map) as usize;
             }
             let chosen = cands.iter().take_while(|c| c.dist < map.match_threshold).find(|c| {
-                !cfg.position_gate || map.node(c.node).and_then(|n| filt.mahalanobis2(n.slot, fix_r)).is_some_and(|d2| d2 < CHI2_2_99)
+                !cfg.position_gate || map.node(c.node).and_then(|n| filt.mahalanobis2(n.slot, fix_r)).is_some_and(|d2| d2 < chi2_2_99())
             });
             let opportunity =
                 truth_opt.is_some() && map.nodes.iter().any(|n| n.truth_ned_m.is_some_and(|p| dist(p, truth) < cfg.opportunity_radius_m));

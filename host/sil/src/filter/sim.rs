@@ -3,16 +3,19 @@
 //!
 //! Truth: a level lawnmower survey at 1.5 m/s (straight legs, 180-degree turns at 0.1 rad/s),
 //! a slow depth profile (heave), 600 s. The IMU readings are derived exactly from the truth
-//! (`f_b = dv_b/dt + w x v_b - R^T g`, `w_b = (0, 0, r)`), then corrupted with a per-run constant
-//! bias and white noise. Aiding: polarization heading 5 Hz, depth 10 Hz, DVL body velocity 5 Hz.
+//! (`subnav_base::imu`: `f_b = dv_b/dt + w x v_b - R^T g`, `w_b = (0, 0, r)`, turns from a
+//! [`TurnSchedule`]), then corrupted with a per-run constant bias and white noise
+//! ([`ImuErrors`]). Aiding: polarization heading 5 Hz, depth 10 Hz, DVL body velocity 5 Hz.
 //!
 //! Noise statistics change mid-run (unknown to the filter, the sensors keep reporting their
 //! nominal sigma): heading noise x10 for 60 s (`heading_burst`), DVL noise x20 in two 10 s bursts
 //! (`dvl_bursts`).
 
+use nalgebra::{Rotation3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use subnav_base::imu::{self, DrawOrder, ImuErrors, ImuGrade, TurnSchedule};
 use subnav_wire::messages::ImuSample;
 
 /// One entry of a sensor log (time-ordered).
@@ -107,19 +110,24 @@ fn mult(t: f64, windows: &[(f64, f64, f64)]) -> f64 {
     windows.iter().find(|(a, b, _)| t >= *a && t < *b).map(|w| w.2).unwrap_or(1.0)
 }
 
-/// Yaw rate of the lawnmower at time `t`: legs of `leg_s`, then a 180-degree turn, alternating
-/// direction.
-fn yaw_rate(cfg: &DiveConfig, t: f64) -> f64 {
-    let turn_s = std::f64::consts::PI / cfg.turn_rate_radps;
-    let period = cfg.leg_s + turn_s;
-    let k = (t / period).floor();
-    let tau = t - k * period;
-    if tau < cfg.leg_s {
-        0.0
-    } else if (k as i64) % 2 == 0 {
-        cfg.turn_rate_radps
-    } else {
-        -cfg.turn_rate_radps
+/// The lawnmower's turns: legs of `leg_s`, then a 180-degree turn at `turn_rate_radps`,
+/// alternating direction.
+fn turns(cfg: &DiveConfig) -> TurnSchedule {
+    TurnSchedule::at_rate(cfg.leg_s, cfg.turn_rate_radps)
+}
+
+impl DiveConfig {
+    /// The IMU grade of the scenario (white noise given per reading at `imu_hz`, constant bias).
+    pub fn imu_grade(&self) -> ImuGrade {
+        let dt = 1.0 / self.imu_hz;
+        ImuGrade {
+            gyro_noise_density: self.gyro_noise_radps * dt.sqrt(),
+            accel_noise_density: self.accel_noise_mps2 * dt.sqrt(),
+            gyro_bias_rw: 0.0,
+            accel_bias_rw: 0.0,
+            gyro_bias_sigma: self.gyro_bias_sigma,
+            accel_bias_sigma: self.accel_bias_sigma,
+        }
     }
 }
 
@@ -133,10 +141,13 @@ fn heave(t: f64) -> (f64, f64) {
 pub fn generate(cfg: &DiveConfig, seed: u64) -> Dive {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let n01 = Normal::new(0.0, 1.0).unwrap_or_else(|_| unreachable!());
-    let mut g = move || n01.sample(&mut rng);
-    let bg = [g() * cfg.gyro_bias_sigma, g() * cfg.gyro_bias_sigma, g() * cfg.gyro_bias_sigma];
-    let ba = [g() * cfg.accel_bias_sigma, g() * cfg.accel_bias_sigma, g() * cfg.accel_bias_sigma];
-    let yaw0 = (g() * 1.0).clamp(-3.0, 3.0);
+    let g = |rng: &mut ChaCha8Rng| -> f64 { n01.sample(rng) };
+    let grade = cfg.imu_grade();
+    let (bg, ba) = ImuErrors::draw_turn_on(&grade, &mut rng, DrawOrder::GyroFirst);
+    let errors = ImuErrors::new(grade, bg, ba, (cfg.gyro_noise_radps, cfg.accel_noise_mps2));
+    let turns = turns(cfg);
+    let g_ned = Vector3::new(0.0, 0.0, 9.81);
+    let yaw0 = (g(&mut rng) * 1.0).clamp(-3.0, 3.0);
     let dt = 1.0 / cfg.imu_hz;
     let steps = (cfg.duration_s * cfg.imu_hz).round() as u64;
     let every = |hz: f64| ((cfg.imu_hz / hz).round() as u64).max(1);
@@ -152,7 +163,7 @@ pub fn generate(cfg: &DiveConfig, seed: u64) -> Dive {
         let t_us = (t * 1e6).round() as u64;
         // The IMU sample at t_k stands for the interval (t_k - dt, t_k]: mid-interval rates.
         let tm = (t - 0.5 * dt).max(0.0);
-        let r = yaw_rate(cfg, tm);
+        let r = turns.yaw_rate(tm);
         let (_, wdot) = heave(tm);
         let (w, _) = heave(t);
         // Body-frame truth: v_b = (u, 0, w), w_b = (0, 0, r), level.
@@ -160,32 +171,33 @@ pub fn generate(cfg: &DiveConfig, seed: u64) -> Dive {
         if k % k_truth == 0 {
             truth.push(Truth { t_us, pos_ned_m: pos, vel_ned_mps: vel_n, yaw_rad: yaw });
         }
-        let f_b = [0.0, r * u, wdot - 9.81];
-        let gyro = [bg[0] + g() * cfg.gyro_noise_radps, bg[1] + g() * cfg.gyro_noise_radps, r + bg[2] + g() * cfg.gyro_noise_radps];
-        let accel = [
-            f_b[0] + ba[0] + g() * cfg.accel_noise_mps2,
-            f_b[1] + ba[1] + g() * cfg.accel_noise_mps2,
-            f_b[2] + ba[2] + g() * cfg.accel_noise_mps2,
-        ];
-        events.push(Event::Imu(ImuSample { t_us, gyro_radps: gyro.map(|v| v as f32), accel_mps2: accel.map(|v| v as f32), temp_c: 10.0 }));
+        let (rate_b, vel_b, dvel_b) = (Vector3::new(0.0, 0.0, r), Vector3::new(u, 0.0, w), Vector3::new(0.0, 0.0, wdot));
+        let f_b = imu::specific_force_body(Rotation3::from_euler_angles(0.0, 0.0, yaw).matrix(), &rate_b, &vel_b, &dvel_b, &g_ned);
+        let (gyro, accel) = errors.measure(&rate_b, &f_b, &mut rng, DrawOrder::GyroFirst);
+        events.push(Event::Imu(ImuSample {
+            t_us,
+            gyro_radps: [0, 1, 2].map(|i| gyro[i] as f32),
+            accel_mps2: [0, 1, 2].map(|i| accel[i] as f32),
+            temp_c: 10.0,
+        }));
         if k > 0 && k % k_head == 0 {
             let s = cfg.heading_sigma_rad * mult(t, &[cfg.heading_burst]);
-            let h = subnav_core::ukf::wrap_pi(yaw + g() * s);
+            let h = subnav_core::ukf::wrap_pi(yaw + g(&mut rng) * s);
             events.push(Event::Heading { t_us, heading_rad: h as f32, sigma_rad: None });
         }
         if k > 0 && k % k_depth == 0 {
-            events.push(Event::Depth { t_us, depth_m: (pos[2] + g() * cfg.depth_sigma_m) as f32, sigma_m: None });
+            events.push(Event::Depth { t_us, depth_m: (pos[2] + g(&mut rng) * cfg.depth_sigma_m) as f32, sigma_m: None });
         }
         if k > 0 && k % k_dvl == 0 {
             let s = cfg.dvl_sigma_mps * mult(t, &cfg.dvl_bursts);
-            let v = [u + g() * s, g() * s, w + g() * s];
+            let v = [u + g(&mut rng) * s, g(&mut rng) * s, w + g(&mut rng) * s];
             events.push(Event::Dvl { t_us, vel_frd_mps: v.map(|x| x as f32), sigma_mps: None });
         }
         // Integrate the truth to the next IMU time (fine sub-steps).
         let h = dt / sub as f64;
         for j in 0..sub {
             let tj = t + j as f64 * h;
-            let rj = yaw_rate(cfg, tj);
+            let rj = turns.yaw_rate(tj);
             let (wj, _) = heave(tj + 0.5 * h);
             let ym = yaw + 0.5 * h * rj;
             pos[0] += u * ym.cos() * h;
