@@ -8,16 +8,7 @@ use crate::ephemeris::EphemerisError;
 use crate::nav::NavError;
 use crate::ukf::UkfError;
 use crate::ukf::weights::WeightError;
-
-fn assert_distinct_messages(what: &str, errors: &[&dyn core::error::Error]) {
-    let messages: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
-    for (i, m) in messages.iter().enumerate() {
-        assert!(!m.trim().is_empty(), "{what}: variant {i} ({:?}) has an empty message", errors[i]);
-        for (j, other) in messages.iter().enumerate().skip(i + 1) {
-            assert_ne!(m, other, "{what}: variants {i} and {j} share the message");
-        }
-    }
-}
+use subnav_wire::error_check::assert_distinct_messages;
 
 #[test]
 fn ephemeris_error() {

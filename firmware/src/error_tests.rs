@@ -3,22 +3,13 @@
 
 use embedded_hal::i2c::ErrorKind;
 use subnav_wire::bridge::BusFault;
+use subnav_wire::error_check::assert_distinct_messages;
 use subnav_wire::{FaultKind, FaultSource};
 
 use crate::bus_bridge::BridgeError;
 use crate::drivers::Error;
 use crate::hal_bus::HalBusError;
 use crate::sensors::SensorFault;
-
-fn assert_distinct_messages(what: &str, errors: &[&dyn core::error::Error]) {
-    let messages: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
-    for (i, m) in messages.iter().enumerate() {
-        assert!(!m.trim().is_empty(), "{what}: variant {i} ({:?}) has an empty message", errors[i]);
-        for (j, other) in messages.iter().enumerate().skip(i + 1) {
-            assert_ne!(m, other, "{what}: variants {i} and {j} share the message");
-        }
-    }
-}
 
 #[test]
 fn bus_errors() {

@@ -7,6 +7,9 @@
 #![forbid(unsafe_code)]
 
 pub mod bridge;
+#[cfg(feature = "std")]
+#[doc(hidden)]
+pub mod error_check;
 pub mod frame;
 pub mod messages;
 
