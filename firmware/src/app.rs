@@ -2,9 +2,15 @@
 //! and telemetry. The board calls [`App::boot`] once, then on every tick
 //! [`App::sensor_tick`] (when it has sensors) and [`App::poll`], with its monotonic time.
 //!
-//! Rates: IMU 200 Hz, polarization 10 Hz, depth 10 Hz (`subnav_core::head`), navigation
-//! telemetry `nav_rate_hz` (configurable 1..=50), health 1 Hz. A failed read is counted and
-//! reported as a fault (rate-limited) and the estimator goes on with the other sensors.
+//! Rates: IMU 200 Hz, polarization 10 Hz, depth 10 Hz (`subnav_core::head`), the DVL at its own
+//! rate (2-15 Hz, polled every tick), navigation telemetry `nav_rate_hz` (configurable 1..=50),
+//! health 1 Hz. A failed read is counted and reported as a fault (rate-limited) and the
+//! estimator goes on with the other sensors.
+//!
+//! Time of validity: DVL reports and position fixes arrive after the instant they describe; the
+//! estimator fuses each at that instant (the filter keeps a short history). A fix older than
+//! the history or stamped too far ahead is refused with its reason in the `Ack`; a DVL report
+//! refused for its time is a counted `TooOld` / `FromFuture` fault.
 
 use subnav_wire::{
     Board, Command, CommandAck, ConfigItem, Decoded, Downlink, Fault, FaultKind, FaultSource, FilterHealth, FrameDecoder,
@@ -13,7 +19,8 @@ use subnav_wire::{
 
 use subnav_core::ephemeris::Observer;
 use subnav_core::head;
-use subnav_wire::{PolarizationSample, RawSample};
+use subnav_core::nav::NavError;
+use subnav_wire::{DvlSample, PolarizationSample, RawSample};
 
 use crate::estimator::Estimator;
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
@@ -84,25 +91,41 @@ pub struct App {
     imu_task: Periodic,
     polarization_task: Periodic,
     depth_task: Periodic,
+    dvl_task: Periodic,
     faults: FaultLog,
-    /// Position fixes stamped later than their arrival, applied when the head's clock reaches
-    /// their time (a host that knows a fix's time ahead, e.g. a simulator or a scheduled
-    /// transponder interrogation, gets it applied at exactly that instant).
-    pending_fixes: heapless::Vec<PendingFix, MAX_PENDING_FIXES>,
     boot_us: u64,
 }
 
 /// After boot, "no data yet" from a sensor is not reported as a fault for this long (µs).
 pub const SENSOR_WARMUP_US: u64 = 200_000;
 
-/// Position fixes that can wait for their time.
-pub const MAX_PENDING_FIXES: usize = 4;
+/// DVL reports taken per poll at most (the DVL sends at most 15 a second).
+const DVL_REPORTS_PER_POLL: usize = 4;
 
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct PendingFix {
-    t_us: u64,
-    pos_ned_m: [f32; 3],
-    cov_ned_m2: [f32; 6],
+/// Serial instruments (the DVL; on the simulated boards also the modem that brings the host's
+/// fixes) are polled this often, µs. The DVL driver stamps a report's time of validity from the
+/// poll that completes it, so this is also the bound of that stamp's error (at 1 m/s and a
+/// 0.1 rad/s turn, 5 ms is 0.5 mrad of attitude: far below the DVL's noise). 115200 baud brings
+/// 58 bytes in 5 ms: a UART with DMA or a 64-byte FIFO keeps up.
+pub const SERIAL_POLL_US: u64 = 5_000;
+
+/// Why the filter refused a measurement, as the reason a command's `Ack` gives.
+fn refusal(e: NavError) -> Refusal {
+    match e {
+        NavError::TooOld => Refusal::TooOld,
+        NavError::FromFuture => Refusal::FromFuture,
+        NavError::NonFinite => Refusal::NotFinite,
+        NavError::BadConfig | NavError::BadTime | NavError::Filter(_) => Refusal::Busy,
+    }
+}
+
+/// Why the filter refused a sensor's measurement, as a fault kind.
+fn fault_kind(e: NavError) -> FaultKind {
+    match e {
+        NavError::TooOld => FaultKind::TooOld,
+        NavError::FromFuture => FaultKind::FromFuture,
+        NavError::NonFinite | NavError::BadConfig | NavError::BadTime | NavError::Filter(_) => FaultKind::NonFinite,
+    }
 }
 
 impl App {
@@ -124,8 +147,8 @@ impl App {
             imu_task: Periodic::new(1_000_000 / head::IMU_RATE_HZ as u64),
             polarization_task: Periodic::new(1_000_000 / head::POLARIZATION_RATE_HZ as u64),
             depth_task: Periodic::new(1_000_000 / head::DEPTH_RATE_HZ as u64),
+            dvl_task: Periodic::new(SERIAL_POLL_US),
             faults: FaultLog::new(),
-            pending_fixes: heapless::Vec::new(),
             boot_us: 0,
         }
     }
@@ -188,6 +211,15 @@ impl App {
                 Err(f) => self.fault(now_us, f, sink),
             }
         }
+        if self.dvl_task.due(now_us) {
+            for _ in 0..DVL_REPORTS_PER_POLL {
+                match sensors.poll_dvl(now_us) {
+                    Ok(Some(d)) => self.on_dvl(now_us, &d, sink),
+                    Ok(None) => break,
+                    Err(f) => self.fault(now_us, f, sink),
+                }
+            }
+        }
         if self.polarization_task.due(now_us) {
             let mut readings: heapless::Vec<(usize, [i16; 4]), { head::POLARIZATION_UNITS }> = heapless::Vec::new();
             for unit in 0..head::POLARIZATION_UNITS {
@@ -216,6 +248,19 @@ impl App {
             let observer = self.observer();
             let report = self.estimator.on_polarization(now_us, &readings, utc, observer);
             self.telemetry.send(&Uplink::Compass(report), sink);
+        }
+    }
+
+    fn on_dvl(&mut self, now_us: u64, d: &DvlSample, sink: &mut impl TelemetrySink) {
+        if self.config.stream_raw {
+            self.telemetry.send(&Uplink::Raw(RawSample::Dvl(*d)), sink);
+        }
+        if !d.valid {
+            self.fault(now_us, SensorFault { source: FaultSource::Dvl, kind: FaultKind::Invalid }, sink);
+            return;
+        }
+        if let Err(e) = self.estimator.on_dvl(d) {
+            self.fault(now_us, SensorFault { source: FaultSource::Dvl, kind: fault_kind(e) }, sink);
         }
     }
 
@@ -256,12 +301,6 @@ impl App {
     /// Run whatever tasks are due at `now_us`. Returns what the board must do next.
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn poll(&mut self, now_us: u64, sink: &mut impl TelemetrySink) -> BoardRequest {
-        while let Some(i) = self.pending_fixes.iter().position(|f| f.t_us <= now_us) {
-            let f = self.pending_fixes.swap_remove(i);
-            if self.estimator.on_position_fix(f.t_us, f.pos_ned_m, f.cov_ned_m2).is_err() {
-                warn!("position fix for {=u64} us dropped: the filter is not running", f.t_us);
-            }
-        }
         if self.nav_task.due(now_us) {
             let nav = self.estimator.solution(now_us);
             self.telemetry.send(&Uplink::Nav(nav), sink);
@@ -282,10 +321,11 @@ impl App {
     }
 
     /// Apply a command as if it came over the downlink (boards use this for a configured start:
-    /// time and origin given at launch). It is acknowledged like any other.
+    /// time and origin given at launch). It is acknowledged like any other. Commands carry their
+    /// own times (a fix its time of validity), so the arrival tick `_now_us` changes nothing.
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
-    pub fn handle_command(&mut self, now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
-        let result = self.apply(now_us, cmd.command);
+    pub fn handle_command(&mut self, _now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
+        let result = self.apply(cmd.command);
         match result {
             Ok(()) => info!("command {=u16} accepted", cmd.seq),
             Err(_) => warn!("command {=u16} refused", cmd.seq),
@@ -293,7 +333,7 @@ impl App {
         self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result }), sink);
     }
 
-    fn apply(&mut self, now_us: u64, command: Command) -> Result<(), Refusal> {
+    fn apply(&mut self, command: Command) -> Result<(), Refusal> {
         let command = match command {
             Command::PositionFix { t_us, pos_ned_m, cov_ned_m2 } => {
                 if !pos_ned_m.iter().chain(cov_ned_m2.iter()).all(|v| v.is_finite()) {
@@ -302,14 +342,10 @@ impl App {
                 if !covariance_is_pd(&cov_ned_m2) {
                     return Err(Refusal::NotPositiveDefinite);
                 }
-                if t_us > now_us {
-                    return self.pending_fixes.push(PendingFix { t_us, pos_ned_m, cov_ned_m2 }).map_err(|_| Refusal::Busy);
-                }
-                return self.estimator.on_position_fix(t_us, pos_ned_m, cov_ned_m2).map_err(|_| Refusal::Busy);
+                return self.estimator.on_position_fix(t_us, pos_ned_m, cov_ned_m2).map_err(refusal);
             }
             Command::ResetFilter => {
                 self.estimator.reset();
-                self.pending_fixes.clear();
                 return Ok(());
             }
             other => other,
@@ -540,8 +576,12 @@ mod tests {
         assert!((2900..=3001).contains(&imu_raw), "raw IMU at 200 Hz minus failed reads: {imu_raw}");
     }
 
+    fn acks(out: &[u8]) -> Vec<CommandAck> {
+        decode_all(out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect()
+    }
+
     #[test]
-    fn a_fix_stamped_ahead_is_applied_at_its_time_and_not_before() {
+    fn a_late_fix_is_fused_at_its_time_and_bad_times_are_refused_with_a_reason() {
         let mut app = App::new(Board::QemuMps2An386);
         let mut head = StillHead { imu_reads: 0 };
         let mut out = Vec::new();
@@ -552,30 +592,95 @@ mod tests {
                 app.poll(ms * 1000, out);
             }
         };
-        run(&mut app, &mut head, &mut out, 0, 12_000);
-        let before = app.estimator().solution(12_000_000);
-        // A fix 2 m north (inside the gate), due at 13 s, sent at 12 s.
-        let fix = Command::PositionFix { t_us: 13_000_000, pos_ned_m: [2.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
-        app.handle_command(12_000_000, Downlink { seq: 7, command: fix }, &mut out);
-        run(&mut app, &mut head, &mut out, 12_000, 12_999);
-        let waiting = app.estimator().solution(12_998_000);
-        assert!((waiting.pos_ned_m[0] - before.pos_ned_m[0]).abs() < 0.1, "applied early: {:?}", waiting.pos_ned_m);
-        run(&mut app, &mut head, &mut out, 12_999, 13_001);
-        let after = app.estimator().solution(13_000_000);
-        assert!(after.pos_ned_m[0] > 0.5, "the fix pulls the position north: {:?}", after.pos_ned_m);
-        let acks: Vec<CommandAck> =
-            decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
-        assert!(acks.contains(&CommandAck { seq: 7, result: Ok(()) }));
-        // A full queue refuses with a reason.
-        for k in 0..MAX_PENDING_FIXES as u16 {
-            let f = Command::PositionFix { t_us: 20_000_000, pos_ned_m: [0.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
-            app.handle_command(13_000_000, Downlink { seq: 100 + k, command: f }, &mut out);
+        let fix = |t_us: u64| Command::PositionFix { t_us, pos_ned_m: [2.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
+        // Before the filter runs: busy.
+        app.handle_command(0, Downlink { seq: 1, command: fix(0) }, &mut out);
+        run(&mut app, &mut head, &mut out, 0, 14_000);
+        let before = app.estimator().solution(14_000_000);
+        // A fix 2 m north (inside the gate) valid 1.5 s ago: fused now, at its time.
+        app.handle_command(14_000_000, Downlink { seq: 2, command: fix(12_500_000) }, &mut out);
+        let after = app.estimator().solution(14_000_000);
+        assert!(after.pos_ned_m[0] - before.pos_ned_m[0] > 0.5, "the fix pulls the position north: {:?}", after.pos_ned_m);
+        // Older than the history, and far in the future: refused, state untouched.
+        app.handle_command(14_000_000, Downlink { seq: 3, command: fix(1_000_000) }, &mut out);
+        app.handle_command(14_000_000, Downlink { seq: 4, command: fix(20_000_000) }, &mut out);
+        let untouched = app.estimator().solution(14_000_000);
+        assert_eq!(untouched.pos_ned_m, after.pos_ned_m);
+        assert_eq!(
+            acks(&out),
+            vec![
+                CommandAck { seq: 1, result: Err(Refusal::Busy) },
+                CommandAck { seq: 2, result: Ok(()) },
+                CommandAck { seq: 3, result: Err(Refusal::TooOld) },
+                CommandAck { seq: 4, result: Err(Refusal::FromFuture) },
+            ]
+        );
+        let h = app.estimator().health(14_000_000);
+        assert_eq!((h.late_fused, h.late_refused), (1, 2), "{h:?}");
+    }
+
+    /// A still head with a DVL that reports zero velocity 0.2 s after each ping at 5 Hz, every
+    /// 7th report flagged invalid and every 11th a malformed sentence.
+    struct DvlHead {
+        still: StillHead,
+        next_ping_us: u64,
+        n: u32,
+    }
+
+    impl SensorSuite for DvlHead {
+        fn read_imu(&mut self, t_us: u64) -> Result<subnav_wire::ImuSample, SensorFault> {
+            self.still.read_imu(t_us)
         }
-        let f = Command::PositionFix { t_us: 20_000_000, pos_ned_m: [0.0, 0.0, 12.0], cov_ned_m2: [1.0, 0.0, 0.0, 1.0, 0.0, 1.0] };
-        app.handle_command(13_000_000, Downlink { seq: 200, command: f }, &mut out);
-        let acks: Vec<CommandAck> =
-            decode_all(&out).into_iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(a) } else { None }).collect();
-        assert!(acks.contains(&CommandAck { seq: 200, result: Err(Refusal::Busy) }));
+        fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
+            self.still.read_polarization(t_us, unit)
+        }
+        fn read_depth(&mut self, t_us: u64, rho: f32) -> Result<subnav_wire::DepthSample, SensorFault> {
+            self.still.read_depth(t_us, rho)
+        }
+        fn poll_dvl(&mut self, t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
+            if t_us < self.next_ping_us + 200_000 {
+                return Ok(None);
+            }
+            let ping = self.next_ping_us;
+            self.next_ping_us += 200_000;
+            self.n += 1;
+            if self.n % 11 == 0 {
+                return Err(SensorFault { source: FaultSource::Dvl, kind: FaultKind::Malformed });
+            }
+            Ok(Some(DvlSample {
+                t_us: ping,
+                rx_us: t_us,
+                tracking: subnav_wire::DvlTracking::Bottom,
+                valid: self.n % 7 != 0,
+                vel_dvl_mps: [0.0; 3],
+                fom_mps: 0.005,
+                altitude_m: 8.0,
+            }))
+        }
+    }
+
+    #[test]
+    fn dvl_reports_are_fused_late_and_invalid_or_malformed_ones_counted_not_fused() {
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut head = DvlHead { still: StillHead { imu_reads: 0 }, next_ping_us: 0, n: 0 };
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        for ms in 0..=30_000u64 {
+            app.sensor_tick(ms * 1000, &mut head, &mut out);
+            app.poll(ms * 1000, &mut out);
+        }
+        let msgs = decode_all(&out);
+        let raw = msgs.iter().filter(|m| matches!(m, Uplink::Raw(RawSample::Dvl(_)))).count();
+        assert!((135..=140).contains(&raw), "5 Hz for 30 s minus the malformed ones: {raw}");
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Dvl, kind: FaultKind::Invalid, .. }))));
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Dvl, kind: FaultKind::Malformed, .. }))));
+        let e = app.estimator();
+        // Fused: the valid reports after the alignment (which ends 1-10 s after boot).
+        assert!(e.dvl_fused > 80 && e.dvl_fused < 130, "{}", e.dvl_fused);
+        let h = e.health(30_000_000);
+        assert!(h.late_fused >= e.dvl_fused, "every DVL report is 0.2 s late: {h:?}");
+        let nav = e.solution(30_000_000);
+        assert!(nav.sigma_vel_mps.iter().all(|s| *s < 0.05), "the DVL holds the velocity: {:?}", nav.sigma_vel_mps);
     }
 
     #[test]

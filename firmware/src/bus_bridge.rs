@@ -265,6 +265,98 @@ impl<L: ByteLink> spi::SpiDevice for BridgeSpi<'_, L> {
     }
 }
 
+/// A UART on the bridge (`embedded_io` port), for serial instruments such as the DVL. Reads
+/// fetch up to [`MAX_OP_BYTES`] bytes per transaction into a small buffer: `read_ready` asks
+/// the host for the bytes fully received by the client's current time (the chip model keeps
+/// the rest), so what the driver sees depends only on the firmware's logical time.
+pub struct BridgeUart<'a, L> {
+    client: &'a RefCell<BridgeClient<L>>,
+    port: u8,
+    buf: [u8; MAX_OP_BYTES],
+    pos: usize,
+    len: usize,
+    /// The time of the last empty answer: no new bytes can arrive before the time moves on.
+    empty_at_us: Option<u64>,
+}
+
+impl<'a, L> BridgeUart<'a, L> {
+    pub fn new(client: &'a RefCell<BridgeClient<L>>, port: u8) -> Self {
+        Self { client, port, buf: [0; MAX_OP_BYTES], pos: 0, len: 0, empty_at_us: None }
+    }
+}
+
+impl<L: ByteLink> BridgeUart<'_, L> {
+    /// Refill the buffer from the host if it is empty; returns whether bytes are buffered.
+    fn fill(&mut self) -> Result<bool, BridgeError> {
+        if self.pos < self.len {
+            return Ok(true);
+        }
+        let Ok(mut client) = self.client.try_borrow_mut() else { return Err(BridgeError(BusFault::Other)) };
+        if self.empty_at_us == Some(client.t_us) {
+            return Ok(false);
+        }
+        let data = client.transact(Bus::Uart { port: self.port }, &[Op::Read { len: MAX_OP_BYTES as u8 }]).map_err(BridgeError)?;
+        let got = data.as_slice();
+        let n = got.len().min(MAX_OP_BYTES);
+        if let (Some(d), Some(g)) = (self.buf.get_mut(..n), got.get(..n)) {
+            d.copy_from_slice(g);
+        }
+        self.pos = 0;
+        self.len = n;
+        self.empty_at_us = (n == 0).then_some(client.t_us);
+        Ok(n > 0)
+    }
+}
+
+impl embedded_io::Error for BridgeError {
+    fn kind(&self) -> embedded_io::ErrorKind {
+        match self.0 {
+            BusFault::Timeout => embedded_io::ErrorKind::TimedOut,
+            BusFault::Nack => embedded_io::ErrorKind::NotConnected,
+            BusFault::Other => embedded_io::ErrorKind::Other,
+        }
+    }
+}
+
+impl<L: ByteLink> embedded_io::ErrorType for BridgeUart<'_, L> {
+    type Error = BridgeError;
+}
+
+impl<L: ByteLink> embedded_io::ReadReady for BridgeUart<'_, L> {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        self.fill()
+    }
+}
+
+impl<L: ByteLink> embedded_io::Read for BridgeUart<'_, L> {
+    /// Non-blocking in practice: returns 0 when nothing has arrived by the current time (call
+    /// `read_ready` first, as `embedded_io` intends for a blocking `read`).
+    fn read(&mut self, out: &mut [u8]) -> Result<usize, Self::Error> {
+        if out.is_empty() || !self.fill()? {
+            return Ok(0);
+        }
+        let n = out.len().min(self.len.saturating_sub(self.pos));
+        if let (Some(d), Some(s)) = (out.get_mut(..n), self.buf.get(self.pos..self.pos + n)) {
+            d.copy_from_slice(s);
+        }
+        self.pos += n;
+        Ok(n)
+    }
+}
+
+impl<L: ByteLink> embedded_io::Write for BridgeUart<'_, L> {
+    fn write(&mut self, bytes: &[u8]) -> Result<usize, Self::Error> {
+        let n = bytes.len().min(MAX_OP_BYTES);
+        let chunk = Bytes::from_slice(bytes.get(..n).unwrap_or(&[])).ok_or(BridgeError(BusFault::Other))?;
+        let Ok(mut client) = self.client.try_borrow_mut() else { return Err(BridgeError(BusFault::Other)) };
+        client.transact(Bus::Uart { port: self.port }, &[Op::Write(chunk)]).map_err(BridgeError)?;
+        Ok(n)
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
 fn split_checked(s: &[u8], n: usize) -> Option<(&[u8], &[u8])> {
     (n <= s.len()).then(|| s.split_at(n))
 }

@@ -1,6 +1,7 @@
 //! The sensor head's estimator: static alignment, then the shared AUKF navigation filter fed by
-//! the IMU, the polarization compass and the depth sensor. HAL-free; the application feeds it
-//! samples and asks it for telemetry.
+//! the IMU, the polarization compass, the depth sensor, the DVL (bottom-track velocity, at its
+//! time of validity) and position fixes from the host (at their time of validity). HAL-free;
+//! the application feeds it samples and asks it for telemetry.
 //!
 //! Alignment (the head must be at rest): roll and pitch from the mean specific force over
 //! `ALIGN_S`, the gyro bias from the mean rate; yaw from `ALIGN_YAW_FIXES` mutually consistent
@@ -18,8 +19,9 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 use subnav_core::compass::{self, CompassInput, UnitModel};
 use subnav_core::ephemeris::{Observer, delta_t_estimate_s};
 use subnav_core::head;
+use subnav_core::nav::dvl::DvlMeasurement;
 use subnav_core::nav::{NavConfig, NavError, NavFilter15, NavInit};
-use subnav_wire::{CompassReport, FilterHealth, ImuSample, NavMode, NavSolution};
+use subnav_wire::{CompassReport, DvlSample, DvlTracking, FilterHealth, ImuSample, NavMode, NavSolution};
 
 const ALIGN_S: f32 = 1.0;
 const ALIGN_MAX_S: f32 = 10.0;
@@ -131,6 +133,10 @@ pub struct Estimator {
     gyro_bias_align: [f32; 3],
     /// Rejected inputs outside the filter (non-finite before alignment, compass failures).
     pub input_rejects: u32,
+    /// The latest IMU rate (alignment bias removed), for the DVL's lever-arm term.
+    last_gyro_radps: [f32; 3],
+    /// DVL velocities fused (accepted by the gate) since boot.
+    pub dvl_fused: u32,
 }
 
 impl Default for Estimator {
@@ -157,6 +163,8 @@ impl Estimator {
             last_depth_m: None,
             gyro_bias_align: [0.0; 3],
             input_rejects: 0,
+            last_gyro_radps: [0.0; 3],
+            dvl_fused: 0,
         }
     }
 
@@ -174,6 +182,7 @@ impl Estimator {
         self.last_depth_m = None;
         self.gyro_bias_align = [0.0; 3];
         self.input_rejects = 0;
+        self.last_gyro_radps = [0.0; 3];
     }
 
     pub fn mode(&self) -> NavMode {
@@ -200,6 +209,9 @@ impl Estimator {
             let mut c = *s;
             for (g, b) in c.gyro_radps.iter_mut().zip(self.gyro_bias_align) {
                 *g -= b;
+            }
+            if finite {
+                self.last_gyro_radps = c.gyro_radps;
             }
             return nav.propagate(&c);
         }
@@ -366,6 +378,29 @@ impl Estimator {
         }
     }
 
+    /// A DVL report. Only valid bottom-track velocities reach the filter, at their time of
+    /// validity, with the noise `head::dvl_sigma_mps` gives (the caller counts invalid reports
+    /// as faults; water-track velocities are recorded but not fused: they are relative to a
+    /// moving water column). Before the alignment ends: ignored.
+    pub fn on_dvl(&mut self, s: &DvlSample) -> Result<(), NavError> {
+        if !s.valid || s.tracking != DvlTracking::Bottom {
+            return Ok(());
+        }
+        let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return Ok(()) };
+        let m = DvlMeasurement {
+            t_us: s.t_us,
+            vel_dvl_mps: s.vel_dvl_mps,
+            covariance_m2ps2: None,
+            fom_mps: Some(head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps)),
+            gyro_radps: self.last_gyro_radps,
+        };
+        let rep = nav.update_dvl(&m, &head::dvl_mounting())?;
+        if rep.accepted {
+            self.dvl_fused = self.dvl_fused.saturating_add(1);
+        }
+        Ok(())
+    }
+
     pub fn solution(&self, t_us: u64) -> NavSolution {
         match self.nav.as_ref().filter(|_| self.running) {
             Some(nav) => nav.solution(),
@@ -387,6 +422,8 @@ impl Estimator {
             Some(nav) => {
                 let mut h = nav.health();
                 h.nonfinite_rejects = h.nonfinite_rejects.saturating_add(self.input_rejects);
+                h.late_fused = nav.delayed_updates();
+                h.late_refused = nav.delay_rejects();
                 h
             }
             None => FilterHealth {
@@ -398,6 +435,8 @@ impl Estimator {
                 pd_repairs: 0,
                 gate_rejects: 0,
                 nonfinite_rejects: self.input_rejects,
+                late_fused: 0,
+                late_refused: 0,
                 cpu_load_permille: 0,
             },
         }

@@ -9,14 +9,21 @@
 //! ms old. Scanning back to back instead costs ~8,000 bus transactions a second for a 10 Hz
 //! output (measured under QEMU), which is what made the QEMU board run at 100 % CPU.
 //!
-//! Axes: the IMU chip axes are the body FRD axes (mounting documented in `host/src/chips`).
+//! The DVL (optional: `None` on a board without one) is polled every tick: the driver assembles
+//! its sentences from whatever bytes the UART has and stamps each report's time of validity
+//! from the tick that completed it (`drivers::dvl_a50`, "Time").
+//!
+//! Axes: the IMU chip axes are the body FRD axes (mounting documented in `host/src/chips`);
+//! the DVL reports in its own axes (its mounting is applied by the navigation filter).
 
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 use embedded_hal::spi::SpiDevice;
-use subnav_wire::{DepthSample, FaultKind, FaultSource, ImuSample};
+use embedded_io::{Read, ReadReady, Write};
+use subnav_wire::{DepthSample, DvlSample, DvlTracking, FaultKind, FaultSource, ImuSample};
 
 use crate::drivers::ads1115::{AdcConfig, PolarizationAdcs, UNITS};
+use crate::drivers::dvl_a50::{self, DvlA50, Sentence, Tracking};
 use crate::drivers::icm42688::{self, Icm42688};
 use crate::drivers::ms5837::{DepthParams, Ms5837};
 use crate::drivers::{BusErrorKind, Error, StuckDetector};
@@ -31,6 +38,36 @@ const SCAN_MAX_AGE_US: u64 = 300_000;
 const DEPTH_MAX_AGE_US: u64 = 300_000;
 /// Identical raw IMU samples in a row that mean a stuck axis.
 const STUCK_LIMIT: u16 = 50;
+/// Sentences looked at per `poll_dvl` call at most (replies and other sentences are skipped).
+const DVL_SENTENCES_PER_POLL: usize = 4;
+
+/// The UART of a board without a DVL: never has bytes, swallows writes.
+pub struct NoDvl;
+
+impl embedded_io::ErrorType for NoDvl {
+    type Error = core::convert::Infallible;
+}
+
+impl Read for NoDvl {
+    fn read(&mut self, _buf: &mut [u8]) -> Result<usize, Self::Error> {
+        Ok(0)
+    }
+}
+
+impl ReadReady for NoDvl {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        Ok(false)
+    }
+}
+
+impl Write for NoDvl {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
 
 /// Results of bringing the sensors up: `None` = ok, else the fault.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,7 +77,7 @@ pub struct InitReport {
     pub depth: Option<FaultKind>,
 }
 
-pub struct HeadSuite<SPI: SpiDevice, I2C: I2c> {
+pub struct HeadSuite<SPI: SpiDevice, I2C: I2c, U: embedded_io::ErrorType = NoDvl> {
     imu: Icm42688<SPI>,
     imu_ready: bool,
     imu_stuck: StuckDetector<6>,
@@ -53,6 +90,7 @@ pub struct HeadSuite<SPI: SpiDevice, I2C: I2c> {
     depth_ready: bool,
     last_depth: Option<(u64, DepthSample)>,
     depth_error: Option<FaultKind>,
+    dvl: Option<DvlA50<U>>,
     pub init: InitReport,
 }
 
@@ -60,15 +98,19 @@ fn kind<E: BusErrorKind>(e: &Error<E>) -> FaultKind {
     e.fault_kind()
 }
 
-impl<SPI, I2C> HeadSuite<SPI, I2C>
+impl<SPI, I2C, U> HeadSuite<SPI, I2C, U>
 where
     SPI: SpiDevice,
     SPI::Error: BusErrorKind,
     I2C: I2c,
     I2C::Error: BusErrorKind,
+    U: Read + ReadReady + Write,
+    U::Error: BusErrorKind,
 {
     /// Bring up all sensors; a sensor that fails stays in the suite and is retried on use.
-    pub fn new(spi: SPI, adc_buses: [I2C; UNITS], depth_bus: I2C, delay: &mut impl DelayNs) -> Self {
+    /// `dvl_uart`: the DVL's UART at [`dvl_a50::DEFAULT_BAUD`], or `None` without a DVL (the
+    /// DVL streams its reports by itself: nothing is sent to it at start).
+    pub fn new(spi: SPI, adc_buses: [I2C; UNITS], depth_bus: I2C, dvl_uart: Option<U>, delay: &mut impl DelayNs) -> Self {
         let mut imu = Icm42688::new(spi, icm42688::Config::default());
         let imu_init = imu.init(delay);
         let mut adcs = PolarizationAdcs::new(adc_buses, AdcConfig::default());
@@ -92,8 +134,14 @@ where
             depth_ready: depth_init.is_ok(),
             last_depth: None,
             depth_error: None,
+            dvl: dvl_uart.map(|u| DvlA50::new(u, dvl_a50::DEFAULT_BAUD)),
             init,
         }
+    }
+
+    /// The DVL driver's counters (`None` without a DVL).
+    pub fn dvl_counters(&self) -> Option<dvl_a50::DvlCounters> {
+        self.dvl.as_ref().map(|d| *d.counters())
     }
 
     fn service_depth(&mut self, t_us: u64) {
@@ -110,13 +158,41 @@ where
     }
 }
 
-impl<SPI, I2C> SensorSuite for HeadSuite<SPI, I2C>
+impl<SPI, I2C, U> SensorSuite for HeadSuite<SPI, I2C, U>
 where
     SPI: SpiDevice,
     SPI::Error: BusErrorKind,
     I2C: I2c,
     I2C::Error: BusErrorKind,
+    U: Read + ReadReady + Write,
+    U::Error: BusErrorKind,
 {
+    fn poll_dvl(&mut self, t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
+        let Some(dvl) = self.dvl.as_mut() else { return Ok(None) };
+        for _ in 0..DVL_SENTENCES_PER_POLL {
+            let rx = match dvl.poll(t_us) {
+                Ok(Some(rx)) => rx,
+                Ok(None) => return Ok(None),
+                Err(e) => return Err(SensorFault { source: FaultSource::Dvl, kind: e.fault_kind() }),
+            };
+            if let (Sentence::Velocity(v), Some(t_valid)) = (rx.sentence, rx.t_valid_us) {
+                return Ok(Some(DvlSample {
+                    t_us: t_valid,
+                    rx_us: rx.rx_us,
+                    tracking: match v.tracking {
+                        Tracking::Bottom => DvlTracking::Bottom,
+                        Tracking::Water => DvlTracking::Water,
+                    },
+                    valid: v.valid,
+                    vel_dvl_mps: v.vel_dvl_mps,
+                    fom_mps: v.fom_mps,
+                    altitude_m: v.altitude_m.unwrap_or(-1.0),
+                }));
+            }
+        }
+        Ok(None)
+    }
+
     fn service(&mut self, t_us: u64) {
         if !self.scanning {
             // The next grid point at or after t_us, and whether we are inside its lead window.

@@ -2,7 +2,7 @@
 //! implements [`SensorSuite`] on top of its drivers (real buses on the STM32 board, the host
 //! bridge under QEMU); host tests implement it with fakes.
 
-use subnav_wire::{DepthSample, FaultKind, FaultSource, ImuSample};
+use subnav_wire::{DepthSample, DvlSample, FaultKind, FaultSource, ImuSample};
 
 /// A failed sensor read, as reported in fault telemetry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -32,6 +32,12 @@ pub trait SensorSuite {
     fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault>;
     /// Pressure, temperature and depth (positive down) with the given water density.
     fn read_depth(&mut self, t_us: u64, water_density_kgm3: f32) -> Result<DepthSample, SensorFault>;
+    /// The next DVL velocity report completed by `t_us` (valid or not, bottom or water track),
+    /// `Ok(None)` when there is none (or no DVL). Called every tick until `Ok(None)`; an error
+    /// (bus, malformed sentence, bad checksum) costs only its sentence.
+    fn poll_dvl(&mut self, _t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
+        Ok(None)
+    }
 }
 
 /// Counts faults per (source, kind) and decides when to report them: the first occurrence,

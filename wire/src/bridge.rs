@@ -1,6 +1,6 @@
 //! Sensor-bus bridge for hardware-in-the-loop under QEMU.
 //!
-//! The QEMU board has no I2C/SPI sensors. Its bus implementation (embedded-hal 1.0 `I2c` and
+//! The QEMU board has no I2C/SPI/UART sensors. Its bus implementation (embedded-hal 1.0 `I2c` and
 //! `SpiDevice`) turns each transaction into a [`BusRequest`], sends it over a second UART to the
 //! host, and blocks until the [`BusResponse`]. The host's register-level chip models answer *for
 //! the firmware's timestamp* in the request, so a run is deterministic whatever the host's speed.
@@ -29,6 +29,10 @@ pub enum Bus {
     I2c { bus: u8, address: u8 },
     /// SPI bus `n`, chip select `cs`.
     Spi { bus: u8, cs: u8 },
+    /// UART `port` (a serial instrument such as the DVL). `Op::Read { len }` asks for up to
+    /// `len` bytes: the response holds the bytes fully received by the request's time (possibly
+    /// none); `Op::Write` sends bytes at that time.
+    Uart { port: u8 },
 }
 
 /// A byte buffer of up to [`MAX_OP_BYTES`].

@@ -105,6 +105,37 @@ pub struct DepthSample {
     pub depth_m: f32,
 }
 
+/// What a DVL velocity is referenced to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DvlTracking {
+    /// Velocity over the bottom (bottom lock): what the navigation filter fuses.
+    Bottom,
+    /// Velocity relative to the water column (no bottom lock): recorded, never fused.
+    Water,
+}
+
+/// One DVL velocity report as the sensor head received it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DvlSample {
+    /// Time of validity (centre of the ping), sensor-head clock.
+    pub t_us: u64,
+    /// When the report's last byte arrived, sensor-head clock (`>= t_us`).
+    pub rx_us: u64,
+    pub tracking: DvlTracking,
+    /// The DVL's own validity flag (`false`: no lock; velocity not usable).
+    pub valid: bool,
+    /// Velocity in the DVL's axes, m/s.
+    pub vel_dvl_mps: [f32; 3],
+    /// Figure of merit (the DVL's 1-sigma estimate per axis), m/s.
+    pub fom_mps: f32,
+    /// Distance to the bottom, m (negative: unknown).
+    pub altitude_m: f32,
+}
+
 /// Raw sensor samples, for recording, replay and offline tuning.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
 #[cfg_attr(test, derive(postcard_schema::Schema))]
@@ -113,6 +144,7 @@ pub enum RawSample {
     Imu(ImuSample),
     Polarization(PolarizationSample),
     Depth(DepthSample),
+    Dvl(DvlSample),
 }
 
 /// Compass output: the heading the polarization compass measured, or why it could not.
@@ -153,6 +185,11 @@ pub struct FilterHealth {
     pub gate_rejects: u32,
     /// Samples rejected as non-finite since boot.
     pub nonfinite_rejects: u32,
+    /// Measurements fused at their own (past) time of validity since boot.
+    pub late_fused: u32,
+    /// Measurements refused for their time since boot: older than the filter's history, or
+    /// stamped in the future beyond the accepted bound.
+    pub late_refused: u32,
     /// CPU load over the last reporting period, per mille.
     pub cpu_load_permille: u16,
 }
@@ -165,6 +202,7 @@ pub enum FaultSource {
     Imu,
     Polarization { unit: u8 },
     Depth,
+    Dvl,
     Link,
     Filter,
     Scheduler,
@@ -192,6 +230,15 @@ pub enum FaultKind {
     /// A polarization unit reads no light while the others do (covered, fouled): left out of
     /// the compass solution.
     Occluded,
+    /// A sentence or frame from a sensor that does not parse (bad framing, fields, numbers,
+    /// overlong).
+    Malformed,
+    /// The sensor flagged its reading invalid (a DVL without bottom lock): never fused.
+    Invalid,
+    /// A measurement older than the filter's history: refused.
+    TooOld,
+    /// A measurement stamped in the future beyond the accepted bound: refused.
+    FromFuture,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
@@ -211,6 +258,7 @@ impl core::fmt::Display for FaultSource {
             FaultSource::Imu => f.write_str("IMU"),
             FaultSource::Polarization { unit } => write!(f, "polarization unit {unit}"),
             FaultSource::Depth => f.write_str("depth sensor"),
+            FaultSource::Dvl => f.write_str("DVL"),
             FaultSource::Link => f.write_str("host link"),
             FaultSource::Filter => f.write_str("navigation filter"),
             FaultSource::Scheduler => f.write_str("scheduler"),
@@ -224,7 +272,7 @@ impl core::fmt::Display for FaultKind {
             FaultKind::BusNack => "bus NACK: the device did not acknowledge",
             FaultKind::BusTimeout => "bus timeout or no data ready",
             FaultKind::BusOther => "bus error (arbitration loss, overrun or other)",
-            FaultKind::BadCrc => "calibration data failed its CRC check",
+            FaultKind::BadCrc => "a CRC or checksum did not match (calibration data or a sentence)",
             FaultKind::IdentityMismatch => "identity register does not match the expected chip",
             FaultKind::Stuck => "readings stuck at the same value",
             FaultKind::Saturated => "readings saturated (at full scale)",
@@ -233,6 +281,10 @@ impl core::fmt::Display for FaultKind {
             FaultKind::Overrun => "task overran its period",
             FaultKind::TelemetryDropped => "telemetry dropped: output buffer full",
             FaultKind::Occluded => "no light while the other units see it (covered or fouled)",
+            FaultKind::Malformed => "malformed sentence (framing, fields or numbers), or longer than the line buffer",
+            FaultKind::Invalid => "the sensor flagged its reading invalid (e.g. DVL without bottom lock): not fused",
+            FaultKind::TooOld => "measurement older than the filter's history: not fused",
+            FaultKind::FromFuture => "measurement stamped in the future beyond the accepted bound: not fused",
         })
     }
 }
@@ -255,6 +307,10 @@ pub enum Refusal {
     NotSupported,
     NotPositiveDefinite,
     Busy,
+    /// The command's time of validity is older than the filter's history.
+    TooOld,
+    /// The command's time of validity is in the future beyond the accepted bound.
+    FromFuture,
 }
 
 impl core::fmt::Display for Refusal {
@@ -264,7 +320,9 @@ impl core::fmt::Display for Refusal {
             Refusal::NotFinite => "a command value is NaN or infinite",
             Refusal::NotSupported => "command not supported by this firmware",
             Refusal::NotPositiveDefinite => "the command's covariance is not positive definite",
-            Refusal::Busy => "sensor head busy (queue full): command not applied, retry",
+            Refusal::Busy => "sensor head busy (queue full, or the filter is not running yet): command not applied, retry",
+            Refusal::TooOld => "the command's time is older than the filter's history: not applied",
+            Refusal::FromFuture => "the command's time is further in the future than the head accepts: not applied",
         })
     }
 }
@@ -303,6 +361,7 @@ impl Uplink {
             Uplink::Raw(RawSample::Imu(m)) => m.t_us,
             Uplink::Raw(RawSample::Polarization(m)) => m.t_us,
             Uplink::Raw(RawSample::Depth(m)) => m.t_us,
+            Uplink::Raw(RawSample::Dvl(m)) => m.t_us,
             Uplink::Compass(m) => m.t_us,
             Uplink::Health(m) => m.t_us,
             Uplink::Fault(m) => m.t_us,
@@ -318,6 +377,7 @@ impl Uplink {
             Uplink::Raw(RawSample::Imu(_)) => "raw.imu",
             Uplink::Raw(RawSample::Polarization(_)) => "raw.polarization",
             Uplink::Raw(RawSample::Depth(_)) => "raw.depth",
+            Uplink::Raw(RawSample::Dvl(_)) => "raw.dvl",
             Uplink::Compass(_) => "compass",
             Uplink::Health(_) => "health",
             Uplink::Fault(_) => "fault",
@@ -353,8 +413,10 @@ pub enum Command {
         t_us: u64,
         utc_unix_us: i64,
     },
-    /// A position fix (e.g. a recognised topological node) with its covariance (upper triangle,
-    /// row-major: xx, xy, xz, yy, yz, zz) at sensor-head time `t_us`.
+    /// A position fix (e.g. a USBL fix or a recognised topological node) with its covariance
+    /// (upper triangle, row-major: xx, xy, xz, yy, yz, zz), valid at sensor-head time `t_us`
+    /// (usually in the past: the head fuses it at that time; refused with
+    /// [`Refusal::TooOld`] / [`Refusal::FromFuture`] outside its history and future bound).
     PositionFix {
         t_us: u64,
         pos_ned_m: [f32; 3],

@@ -221,6 +221,10 @@ pub enum NavError {
     BadTime,
     /// The UKF refused the step (state untouched).
     Filter(UkfError),
+    /// TEMP (coordinator stub until the delay branch lands).
+    TooOld,
+    /// TEMP
+    FromFuture,
 }
 
 impl core::fmt::Display for NavError {
@@ -230,6 +234,8 @@ impl core::fmt::Display for NavError {
             NavError::NonFinite => f.write_str("sample is NaN, infinite or implausibly large: rejected"),
             NavError::BadTime => f.write_str("sample time not after the previous one, or the IMU gap exceeds max_imu_dt_s"),
             NavError::Filter(e) => write!(f, "the UKF refused the step: {e}"),
+            NavError::TooOld => f.write_str("measurement older than the filter's history"),
+            NavError::FromFuture => f.write_str("measurement stamped in the future beyond the bound"),
         }
     }
 }
@@ -557,6 +563,14 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Samples rejected before reaching the UKF (non-finite or implausible IMU/aiding values).
     pub fn input_rejects(&self) -> u32 {
         self.imu_rejects
+    }
+    /// TEMP coordinator stub.
+    pub fn delayed_updates(&self) -> u32 {
+        0
+    }
+    /// TEMP coordinator stub.
+    pub fn delay_rejects(&self) -> u32 {
+        0
     }
     /// IMU samples with a bad time stamp (not increasing, or a gap).
     pub fn time_rejects(&self) -> u32 {

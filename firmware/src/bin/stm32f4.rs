@@ -8,6 +8,8 @@
 //!   ADS1115 (0x48-0x4B) and the MS5837-30BA (0x76) sharing I2C1 (PB6 SCL, PB7 SDA, 400 kHz)
 //!   through embedded-hal-bus's `RefCellDevice`, each bus wrapped in `hal_bus` so its errors
 //!   map to telemetry fault kinds;
+//! - the DVL: not wired on this board yet (`NoDvl`: the head runs without it); the QEMU board
+//!   and the native runs have it on UART 0;
 //! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s.
 //!
 //! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
@@ -33,7 +35,7 @@ use stm32f4xx_hal::{
     spi::{Mode, Phase, Polarity},
 };
 use subnav_firmware::hal_bus::{HalI2c, HalSpi};
-use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::head_suite::{HeadSuite, NoDvl};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
 use subnav_wire::Board;
@@ -139,6 +141,7 @@ fn main() -> ! {
         HalSpi(imu_dev),
         core::array::from_fn(|_| HalI2c(RefCellDevice::new(&i2c))),
         HalI2c(RefCellDevice::new(&i2c)),
+        None::<NoDvl>,
         &mut delay,
     );
     defmt::info!(

@@ -86,6 +86,13 @@ impl BusErrorKind for crate::bus_bridge::BridgeError {
     }
 }
 
+/// No bus at all (a board without the instrument): never fails.
+impl BusErrorKind for core::convert::Infallible {
+    fn fault_kind(&self) -> FaultKind {
+        match *self {}
+    }
+}
+
 /// Map any embedded-hal I2C error through its [`embedded_hal::i2c::ErrorKind`].
 pub fn i2c_fault_kind<E: embedded_hal::i2c::Error>(e: &E) -> FaultKind {
     match e.kind() {
@@ -111,7 +118,7 @@ impl<E: BusErrorKind> Error<E> {
             Error::BadCrc { .. } => FaultKind::BadCrc,
             Error::NotReady => FaultKind::BusTimeout,
             Error::InvalidInput => FaultKind::NonFinite,
-            Error::Malformed => FaultKind::CorruptFrame,
+            Error::Malformed => FaultKind::Malformed,
         }
     }
 }

@@ -10,9 +10,9 @@ use nalgebra::{Quaternion, UnitQuaternion};
 use serde::Serialize;
 use subnav_wire::{NavMode, Uplink};
 
-use super::head::{FIX_LEAD_S, Scenario, SimHead};
+use super::head::{Scenario, SimHead};
 use subnav_link::LinkEvent;
-use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+use subnav_link::qemu::{QemuConfig, QemuEvent, RawBytes, run_with_bus};
 use subnav_link::record::tap::QemuRecorder;
 
 /// Error statistics of one dive.
@@ -78,23 +78,20 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     cfg.board_args = sc.board_args();
     let recorder = opts.record.map(|p| QemuRecorder::start(&mut cfg, p)).transpose()?;
     let mut msgs = Vec::new();
-    let fixes = sc.fixes();
-    let mut next_fix = 0;
-    let mut send_error = None;
-    let result = run_with_bus(&cfg, Box::new(SimHead::new(sc)), |e, down| {
+    // Fixes reach the firmware through the bridge's modem (UART 1) at their arrival time; the
+    // recording gets each delivered frame in its downlink stream.
+    let tap = cfg.raw_tap.clone().map(|tx| {
+        let tx = std::sync::Mutex::new(tx);
+        Box::new(move |_t: u64, f: &[u8]| {
+            if let Ok(tx) = tx.lock() {
+                let _ = tx.send(RawBytes::Downlink(f.to_vec()));
+            }
+        }) as crate::chips::modem::DeliveryTap
+    });
+    let result = run_with_bus(&cfg, Box::new(SimHead::with_downlink_tap(sc, tap)), |e, _down| {
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
-            // Fixes are sent FIX_LEAD_S of firmware time ahead (the firmware queues them).
-            if let Uplink::Nav(n) = &m {
-                let now_s = n.t_us as f64 * 1e-6;
-                if let Some(p) = opts.progress {
-                    p(now_s);
-                }
-                while let Some(f) = fixes.get(next_fix).filter(|f| f.t_s - FIX_LEAD_S <= now_s) {
-                    if let Err(e) = down.send(f.command()) {
-                        send_error.get_or_insert(e);
-                    }
-                    next_fix += 1;
-                }
+            if let (Uplink::Nav(n), Some(p)) = (&m, opts.progress) {
+                p(n.t_us as f64 * 1e-6);
             }
             msgs.push(m);
         }
@@ -104,9 +101,6 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
         r.finish()?;
     }
     let (outcome, _) = result?;
-    if let Some(e) = send_error {
-        return Err(e.context("sending a position fix to the firmware"));
-    }
     if outcome.timed_out {
         anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
     }

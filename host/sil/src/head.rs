@@ -5,7 +5,10 @@
 //! firmware's default filter tuning uses; [`Scenario::imu_noise_scale`] mis-tunes on purpose).
 //!
 //! Buses (must match `firmware/src/bin/qemu`): SPI 0 CS 0 = ICM-42688-P; I2C 0 = ADS1115 at
-//! 0x48..0x4B (polarization unit u on 0x48 + u) and MS5837-30BA at 0x76.
+//! 0x48..0x4B (polarization unit u on 0x48 + u) and MS5837-30BA at 0x76; UART 0 = DVL-A50
+//! (bottom track over a flat seafloor, water track without lock, the scenario's faults, scale
+//! and misalignment drawn per seed); UART 1 = the modem that delivers the host's position
+//! fixes at their arrival time (validity time + the scenario's latency).
 
 use std::sync::Arc;
 
@@ -18,6 +21,8 @@ use subnav_core::ephemeris::{self, Atmosphere, Observer};
 use subnav_core::head;
 use subnav_wire::bridge::{BusRequest, BusResponse};
 
+use crate::chips::dvl_a50::{DvlA50Model, DvlFaults, DvlGrade, DvlInput, DvlMountingModel};
+use crate::chips::modem::{DeliveryTap, ModemModel};
 use crate::chips::{Ads1115Model, ChipSet, Icm42688Model, ImuInput, Ms5837Model, PressureInput};
 use subnav_base::imu::{DrawOrder, ImuErrors, ImuGrade, normal};
 use subnav_base::sky::{self as polar, Field, SensorErrors, Water};
@@ -39,18 +44,31 @@ pub struct FaultPlan {
 
 /// Position fixes the host sends during the dive (an acoustic positioning system such as USBL,
 /// or a recognised map node): the truth at each fix time plus white noise of `sigma_m` on every
-/// axis, with that covariance.
+/// axis, with that covariance, stamped with that time and arriving `latency_s` later.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FixPlan {
     /// Interval between fixes, s; the first comes one interval after the rest period.
     pub period_s: f64,
     pub sigma_m: f64,
+    /// From the fix's time of validity (the ping) to its arrival at the sensor head, s (USBL:
+    /// 0.5-3 s).
+    #[serde(default)]
+    pub latency_s: f64,
+    /// Stamp each fix with its arrival time instead of its time of validity: what a head that
+    /// fuses every fix as if it were current does (for comparison only).
+    #[serde(default)]
+    pub as_if_current: bool,
 }
 
 /// A scheduled position fix.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScheduledFix {
+    /// Time of validity, s since boot.
     pub t_s: f64,
+    /// When it reaches the head, s since boot.
+    pub arrival_s: f64,
+    /// The time the command carries, s since boot (`t_s`, or `arrival_s` if as-if-current).
+    pub stamp_s: f64,
     pub pos_ned_m: [f32; 3],
     pub sigma_m: f32,
 }
@@ -60,17 +78,51 @@ impl ScheduledFix {
     pub fn command(&self) -> subnav_wire::Command {
         let v = self.sigma_m * self.sigma_m;
         subnav_wire::Command::PositionFix {
-            t_us: (self.t_s * 1e6).round() as u64,
+            t_us: (self.stamp_s * 1e6).round() as u64,
             pos_ned_m: self.pos_ned_m,
             cov_ned_m2: [v, 0.0, 0.0, v, 0.0, v],
         }
     }
 }
 
-/// How long before its time a fix is sent (firmware time): the firmware queues a fix stamped
-/// ahead and applies it when its clock gets there, so the QEMU run stays repeatable as long as
-/// the fix arrives within this lead.
-pub const FIX_LEAD_S: f64 = 5.0;
+/// The DVL of a dive: a flat seafloor, a uniform current and the instrument's faults.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DvlPlan {
+    /// Depth of the (flat) seafloor, m: the DVL's altitude is this minus its own depth.
+    pub seafloor_depth_m: f64,
+    /// Water current over the ground, north and east, m/s (seen by water track).
+    pub current_ne_mps: [f64; 2],
+    /// A ping produces no report with this probability.
+    pub dropout_probability: f64,
+    /// A ping in range is reported invalid with this probability.
+    pub invalid_probability: f64,
+    /// A sentence has a character changed (bad checksum) / is cut short (malformed).
+    pub bad_checksum_probability: f64,
+    pub truncate_probability: f64,
+    /// No output at all in this window, s since boot.
+    pub silent_s: Option<(f64, f64)>,
+    /// Without bottom lock, switch to water tracking (back when the bottom returns).
+    pub auto_water_track: bool,
+}
+
+impl Default for DvlPlan {
+    fn default() -> Self {
+        Self {
+            seafloor_depth_m: 30.0,
+            current_ne_mps: [0.2, -0.1],
+            dropout_probability: 0.02,
+            invalid_probability: 0.01,
+            bad_checksum_probability: 0.005,
+            truncate_probability: 0.005,
+            silent_s: None,
+            auto_water_track: true,
+        }
+    }
+}
+
+fn default_dvl() -> Option<DvlPlan> {
+    Some(DvlPlan::default())
+}
 
 /// A dive scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -88,10 +140,13 @@ pub struct Scenario {
     /// Scale on the IMU noise densities relative to the grade the filter is tuned for.
     pub imu_noise_scale: f64,
     pub faults: FaultPlan,
-    /// Position fixes (None: no position aiding; the horizontal position is then free-inertial
-    /// and drifts like any MEMS INS: hundreds of metres in five minutes).
+    /// Position fixes (None: no position aiding).
     #[serde(default)]
     pub position_fixes: Option<FixPlan>,
+    /// The DVL (None: no velocity aiding; without fixes either, the horizontal position is then
+    /// free-inertial and drifts like any MEMS INS: hundreds of metres in five minutes).
+    #[serde(default = "default_dvl")]
+    pub dvl: Option<DvlPlan>,
 }
 
 impl Default for Scenario {
@@ -108,7 +163,8 @@ impl Default for Scenario {
             turbidity: 1.0,
             imu_noise_scale: 1.0,
             faults: FaultPlan::default(),
-            position_fixes: Some(FixPlan { period_s: 5.0, sigma_m: 2.0 }),
+            position_fixes: Some(FixPlan { period_s: 5.0, sigma_m: 2.0, latency_s: 1.0, as_if_current: false }),
+            dvl: default_dvl(),
         }
     }
 }
@@ -140,7 +196,9 @@ impl Scenario {
         while t <= self.duration_s {
             let p = traj.at(t).pos_ned_m;
             let pos_ned_m = [0, 1, 2].map(|k| (p[k] + n.sample(&mut rng)) as f32);
-            out.push(ScheduledFix { t_s: t, pos_ned_m, sigma_m: plan.sigma_m as f32 });
+            let arrival_s = t + plan.latency_s.max(0.0);
+            let stamp_s = if plan.as_if_current { arrival_s } else { t };
+            out.push(ScheduledFix { t_s: t, arrival_s, stamp_s, pos_ned_m, sigma_m: plan.sigma_m as f32 });
             t += plan.period_s;
         }
         out
@@ -210,8 +268,73 @@ impl BusHandler for SimHead {
     }
 }
 
+/// The downlink frames of the dive's position fixes with their arrival times (µs), sequence
+/// numbers from 1.
+pub fn fix_frames(sc: &Scenario) -> Vec<(u64, Vec<u8>)> {
+    let mut out = Vec::new();
+    for (k, f) in sc.fixes().iter().enumerate() {
+        let seq = u16::try_from(k + 1).unwrap_or(u16::MAX);
+        let mut buf = [0u8; subnav_wire::MAX_DOWNLINK_FRAME];
+        if let Ok(frame) = subnav_wire::encode(&subnav_wire::Downlink { seq, command: f.command() }, &mut buf) {
+            out.push(((f.arrival_s * 1e6).round() as u64, frame.to_vec()));
+        }
+    }
+    out
+}
+
+/// The DVL's physical input over the dive: the truth's body velocity and rate, the altitude
+/// over the scenario's flat seafloor and the current in body axes.
+pub fn dvl_input(plan: DvlPlan, traj: Arc<Trajectory>) -> impl FnMut(u64) -> DvlInput + Send + 'static {
+    let lever_down_m = f64::from(head::dvl_mounting().lever_arm_body_m.z);
+    move |t_us| {
+        let truth = traj.at(t_us as f64 * 1e-6);
+        let r_bn = truth.att_nb.inverse();
+        let v_b = r_bn * truth.vel_ned_mps;
+        let c_b = r_bn * Vector3::new(plan.current_ne_mps[0], plan.current_ne_mps[1], 0.0);
+        DvlInput {
+            vel_body_mps: [v_b.x, v_b.y, v_b.z],
+            rate_body_radps: [truth.gyro_radps.x, truth.gyro_radps.y, truth.gyro_radps.z],
+            altitude_m: plan.seafloor_depth_m - truth.pos_ned_m.z - lever_down_m,
+            current_body_mps: [c_b.x, c_b.y, c_b.z],
+        }
+    }
+}
+
+/// The DVL-A50 model of a scenario (nominal mounting from `subnav_core::head`, unit errors from
+/// the seed).
+pub fn dvl_model(sc: &Scenario, plan: DvlPlan, traj: Arc<Trajectory>) -> DvlA50Model {
+    let m = head::dvl_mounting();
+    let q = m.rot_body_from_dvl;
+    let mounting = DvlMountingModel {
+        rot_body_from_dvl: nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            f64::from(q.w),
+            f64::from(q.i),
+            f64::from(q.j),
+            f64::from(q.k),
+        )),
+        lever_arm_body_m: m.lever_arm_body_m.map(f64::from),
+    };
+    let mut dvl = DvlA50Model::new(DvlGrade::A50, mounting, sc.seed ^ 0x7777, dvl_input(plan, traj));
+    let window = |(a, b): (f64, f64)| ((a * 1e6) as u64, (b * 1e6) as u64);
+    dvl.faults = DvlFaults {
+        dropout_probability: plan.dropout_probability,
+        silent_window_us: plan.silent_s.map(window),
+        invalid_probability: plan.invalid_probability,
+        bad_checksum_probability: plan.bad_checksum_probability,
+        truncate_probability: plan.truncate_probability,
+        high_temperature: false,
+        auto_water_track: plan.auto_water_track,
+    };
+    dvl
+}
+
 impl SimHead {
     pub fn new(sc: &Scenario) -> Self {
+        Self::with_downlink_tap(sc, None)
+    }
+
+    /// As [`SimHead::new`], with `tap` called for every downlink frame the modem delivers.
+    pub fn with_downlink_tap(sc: &Scenario, tap: Option<DeliveryTap>) -> Self {
         let traj = Arc::new(sc.trajectory());
         let mut chips = ChipSet::new();
 
@@ -266,6 +389,11 @@ impl SimHead {
                 crate::chips::BusFaults::seeded(sc.seed ^ 0x5555).with_nack_probability(sc.faults.depth_nack_probability, sc.seed ^ 0x5555);
         }
         chips.attach_i2c(0, depth);
+
+        if let Some(plan) = sc.dvl {
+            chips.attach_uart(0, dvl_model(sc, plan, traj.clone()));
+        }
+        chips.attach_uart(1, ModemModel::new(fix_frames(sc), tap));
         SimHead { chips }
     }
 }

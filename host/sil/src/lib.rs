@@ -8,4 +8,4 @@ pub mod head;
 pub mod replay;
 pub mod sil;
 
-pub use head::{FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};
+pub use head::{DvlPlan, FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};

@@ -10,7 +10,8 @@
 //! - a [`SensorSuite`] answers each read from the recorded stream: a read succeeds with the
 //!   recorded sample when the next recorded message is that raw sample (for the IMU and the
 //!   polarization units also stamped with this tick), otherwise it fails (the board's read failed:
-//!   the fault path, IMU coasting included, runs as it did);
+//!   the fault path, IMU coasting included, runs as it did); a DVL report is served at the tick
+//!   that completed it (`rx_us`);
 //! - a command is applied at the first tick whose recorded stream continues with its `Ack`: the
 //!   uplink order says when the firmware handled it (between the messages around the Ack; any
 //!   tick in that window gives the same state, except a past-stamped fix handled in a window that
@@ -46,7 +47,7 @@ use subnav_firmware::sensors::{SensorFault, SensorSuite};
 use subnav_link::record::session::Session;
 use subnav_link::record::{Loaded, read_bytes};
 use subnav_wire::{
-    Board, Command, CompassReport, ConfigItem, Decoded, DepthSample, Downlink, FaultKind, FaultSource, FrameDecoder, ImuSample,
+    Board, Command, CompassReport, ConfigItem, Decoded, DepthSample, Downlink, DvlSample, FaultKind, FaultSource, FrameDecoder, ImuSample,
     MAX_UPLINK_FRAME, NavSolution, RawSample, Uplink,
 };
 
@@ -498,6 +499,19 @@ impl SensorSuite for Suite<'_, '_> {
                 Ok(d)
             }
             _ => Err(st.fault_for(FaultSource::Depth)),
+        }
+    }
+    fn poll_dvl(&mut self, t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
+        // A report completed at this tick; sentences the firmware refused (malformed, bad
+        // checksum) never reached the estimator and are not replayed (their faults match loosely).
+        let mut st = self.0.borrow_mut();
+        match st.peek() {
+            Some(Uplink::Raw(RawSample::Dvl(d))) if d.rx_us == t_us => {
+                let d = *d;
+                st.report.raw_samples += 1;
+                Ok(Some(d))
+            }
+            _ => Ok(None),
         }
     }
 }

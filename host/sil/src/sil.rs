@@ -10,15 +10,19 @@
 use std::cell::RefCell;
 use std::collections::VecDeque;
 
+use std::sync::{Arc, Mutex};
+
+use embedded_io::Read as _;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
-use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
+use subnav_firmware::app::SERIAL_POLL_US;
+use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
-use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, Uplink};
+use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
 
 use super::dive::{DiveResult, evaluate};
-use super::head::{FIX_LEAD_S, Scenario, SimHead};
+use super::head::{Scenario, SimHead};
 use super::replay::boot_commands;
 use subnav_link::qemu::BusHandler;
 
@@ -95,7 +99,14 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
         app.handle_command(0, Downlink { seq: 0, command }, &mut sink);
     }
 
-    let link = InProcessLink { head: SimHead::new(sc), rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
+    // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
+    let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
+    let tap = {
+        let d = delivered.clone();
+        Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
+    };
+    let head = SimHead::with_downlink_tap(sc, Some(tap));
+    let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;
     let mut delay = BridgeDelay::new(&bridge);
@@ -103,33 +114,33 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
         BridgeSpi::new(&bridge, 0, 0),
         core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
         BridgeI2c::new(&bridge, 0),
+        Some(BridgeUart::new(&bridge, 0)),
         &mut delay,
     );
+    let mut modem = BridgeUart::new(&bridge, 1);
+    let mut rx = [0u8; 64];
     let end_ms = (sc.duration_s * 1000.0).round() as u64;
-    let fixes = sc.fixes();
-    let mut next_fix = 0;
-    let mut seq = 1u16;
     for ms in 0..=end_ms {
         let t_us = ms * 1000;
-        // Fixes go over the downlink byte path, FIX_LEAD_S ahead of their time, as under QEMU.
-        while let Some(f) = fixes.get(next_fix).filter(|f| f.t_s - FIX_LEAD_S <= ms as f64 * 1e-3) {
-            let mut buf = [0u8; MAX_DOWNLINK_FRAME];
-            if let Ok(frame) = wire::encode(&Downlink { seq, command: f.command() }, &mut buf) {
-                downlink.push((t_us, frame.to_vec()));
-                app.on_downlink_bytes(t_us, frame, &mut sink);
-            }
-            seq = seq.wrapping_add(1);
-            next_fix += 1;
-        }
         sink.now_us = t_us;
         if let Some(p) = progress.filter(|_| ms % 1000 == 0) {
             p(ms as f64 * 1e-3);
         }
         bridge.borrow_mut().set_time(t_us);
+        if t_us % SERIAL_POLL_US == 0 {
+            for _ in 0..4 {
+                let n = modem.read(&mut rx).unwrap_or(0);
+                let Some(bytes) = rx.get(..n).filter(|b| !b.is_empty()) else { break };
+                app.on_downlink_bytes(t_us, bytes, &mut sink);
+            }
+        }
         app.sensor_tick(t_us, &mut suite, &mut sink);
         let _ = app.poll(t_us, &mut sink);
     }
+    drop(modem);
+    drop(suite);
     let transactions = bridge.into_inner().link_mut().transactions;
+    downlink.extend(delivered.lock().unwrap_or_else(|e| e.into_inner()).drain(..));
     NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions }
 }
 

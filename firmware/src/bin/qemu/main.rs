@@ -1,6 +1,7 @@
 //! Board: QEMU `mps2-an386` (Cortex-M4F). Thin glue around [`subnav_firmware::App`]:
 //! - telemetry and commands on CMSDK UART0 (0x4000_4000), which QEMU connects to a socket/file;
-//! - the sensors (ICM-42688-P on SPI, 4x ADS1115 and MS5837 on I2C) through the host bridge
+//! - the sensors (ICM-42688-P on SPI, 4x ADS1115 and MS5837 on I2C, the DVL-A50 on UART 0)
+//!   through the host bridge, and the modem that brings the host's position fixes (UART 1)
 //!   (two named pipes opened over semihosting, see `semihost_pipe.rs`): the same drivers as on
 //!   the STM32 board, only the bus implementation differs;
 //! - defmt logs and the exit status over semihosting;
@@ -40,7 +41,8 @@ impl ByteLink for PipeLink {
     }
 }
 
-use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, ByteLink};
+use subnav_firmware::app::SERIAL_POLL_US;
+use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
@@ -197,6 +199,7 @@ fn main() -> ! {
             BridgeSpi::new(&bridge, 0, 0),
             core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
             BridgeI2c::new(&bridge, 0),
+            Some(BridgeUart::new(&bridge, 0)),
             &mut delay,
         );
         defmt::info!(
@@ -208,6 +211,9 @@ fn main() -> ! {
         suite
     });
 
+    // The modem that brings the host's position fixes in a simulated dive (bridge UART 1: read
+    // on the firmware's logical time, so the run stays deterministic).
+    let mut modem = has_bridge.then(|| BridgeUart::new(&bridge, 1));
     let mut rx = [0u8; 64];
     let mut next_tick_ms: u64 = 0;
     let mut window_start_us = clock.now_us();
@@ -222,6 +228,13 @@ fn main() -> ! {
             let n = uart.read_available(&mut rx);
             if let Some(bytes) = rx.get(..n) {
                 if !bytes.is_empty() {
+                    app.on_downlink_bytes(t_us, bytes, &mut uart);
+                }
+            }
+            if let Some(m) = modem.as_mut().filter(|_| t_us % SERIAL_POLL_US == 0) {
+                for _ in 0..4 {
+                    let n = embedded_io::Read::read(m, &mut rx).unwrap_or(0);
+                    let Some(bytes) = rx.get(..n).filter(|b| !b.is_empty()) else { break };
                     app.on_downlink_bytes(t_us, bytes, &mut uart);
                 }
             }

@@ -43,6 +43,16 @@ pub fn text(m: &Uplink) -> String {
         Uplink::Raw(RawSample::Depth(s)) => {
             format!("depth   t={} pressure_pa={:.1} depth_m={:.3} temp_c={:.2}", secs(s.t_us), s.pressure_pa, s.depth_m, s.temp_c)
         }
+        Uplink::Raw(RawSample::Dvl(d)) => format!(
+            "dvl     t={} rx={} {:?} valid={} vel_dvl_mps={} fom_mps={:.3} altitude_m={:.2}",
+            secs(d.t_us),
+            secs(d.rx_us),
+            d.tracking,
+            d.valid,
+            v3(&d.vel_dvl_mps),
+            d.fom_mps,
+            d.altitude_m
+        ),
         Uplink::Compass(c) => format!(
             "compass t={} heading_deg={} sigma_deg={:.3} units={} no_fix_reason={}",
             secs(c.t_us),
@@ -52,14 +62,16 @@ pub fn text(m: &Uplink) -> String {
             c.no_fix_reason
         ),
         Uplink::Health(h) => format!(
-            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} gate_rejects={} nonfinite={}",
+            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} gate_rejects={} nonfinite={} late_fused={} late_refused={}",
             secs(h.t_us),
             h.cpu_load_permille as f32 / 10.0,
             h.lambda,
             h.nis,
             h.pd_repairs,
             h.gate_rejects,
-            h.nonfinite_rejects
+            h.nonfinite_rejects,
+            h.late_fused,
+            h.late_refused
         ),
         Uplink::Fault(f) => format!("FAULT   t={} {}: {} count={}", secs(f.t_us), f.source, f.kind, f.count),
         Uplink::Ack(a) => format!("ack     seq={} {}", a.seq, a.result.map_or_else(|r| format!("refused: {r}"), |()| "ok".to_string())),

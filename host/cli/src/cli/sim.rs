@@ -1,5 +1,6 @@
 //! `subnav sim`: write a dive scenario (JSON) for `subnav run`: a lawnmower survey at depth at a
-//! date and place, water clarity, sensor grades, position fixes and injected faults.
+//! date and place, water clarity, sensor grades, the DVL (on by default) and its seafloor,
+//! position fixes with their latency, and injected faults.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -7,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 
 use super::{Format, args};
-use subnav_sil::{FaultPlan, FixPlan, Scenario};
+use subnav_sil::{DvlPlan, FaultPlan, FixPlan, Scenario};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -56,9 +57,34 @@ pub struct Args {
     /// Position fix 1-sigma per axis, m.
     #[arg(long, default_value_t = 2.0)]
     pub fix_sigma_m: f64,
-    /// No position fixes (the horizontal position is then free-inertial).
+    /// Time from a fix's validity (the ping) to its arrival at the sensor head, s.
+    #[arg(long, default_value_t = 1.0)]
+    pub fix_latency_s: f64,
+    /// Stamp fixes with their arrival time (the head then fuses them as if current; for
+    /// comparison with fusion at the time of validity).
+    #[arg(long)]
+    pub fix_as_if_current: bool,
+    /// No position fixes.
     #[arg(long)]
     pub no_fixes: bool,
+    /// No DVL (without fixes either, the horizontal position is then free-inertial).
+    #[arg(long)]
+    pub no_dvl: bool,
+    /// Depth of the flat seafloor under the survey, m (the DVL's bottom lock reaches 50 m).
+    #[arg(long, default_value_t = 30.0)]
+    pub seafloor_depth_m: f64,
+    /// DVL fault: probability that a ping gives no report.
+    #[arg(long, default_value_t = 0.02)]
+    pub dvl_dropout_probability: f64,
+    /// DVL fault: probability that a ping in range is reported invalid.
+    #[arg(long, default_value_t = 0.01)]
+    pub dvl_invalid_probability: f64,
+    /// DVL fault: probability that a sentence arrives with a bad checksum / cut short.
+    #[arg(long, default_value_t = 0.005)]
+    pub dvl_corrupt_probability: f64,
+    /// DVL fault: no output from A to B s (`A,B`).
+    #[arg(long, value_name = "A,B", value_parser = args::parse_window)]
+    pub dvl_silent: Option<args::Window>,
     /// Fault: the IMU NACKs every transaction from A to B s (`A,B`).
     #[arg(long, value_name = "A,B", value_parser = args::parse_window)]
     pub imu_nack: Option<args::Window>,
@@ -93,6 +119,11 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
             "--fix-period-s and --fix-sigma-m must be positive (or use --no-fixes)",
         ),
         ((0.0..=1.0).contains(&a.depth_nack_probability), "--depth-nack-probability must be in [0, 1]"),
+        ((0.0..=30.0).contains(&a.fix_latency_s), "--fix-latency-s must be in [0, 30]"),
+        (a.seafloor_depth_m.is_finite() && a.seafloor_depth_m > a.depth_m, "--seafloor-depth-m must be deeper than --depth-m"),
+        ((0.0..=1.0).contains(&a.dvl_dropout_probability), "--dvl-dropout-probability must be in [0, 1]"),
+        ((0.0..=1.0).contains(&a.dvl_invalid_probability), "--dvl-invalid-probability must be in [0, 1]"),
+        ((0.0..=1.0).contains(&a.dvl_corrupt_probability), "--dvl-corrupt-probability must be in [0, 1]"),
     ];
     if let Some((_, msg)) = checks.iter().find(|(ok, _)| !ok) {
         bail!("{msg}");
@@ -109,7 +140,21 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
     }
     sc.turbidity = a.turbidity;
     sc.imu_noise_scale = a.imu_noise_scale;
-    sc.position_fixes = (!a.no_fixes).then_some(FixPlan { period_s: a.fix_period_s, sigma_m: a.fix_sigma_m });
+    sc.position_fixes = (!a.no_fixes).then_some(FixPlan {
+        period_s: a.fix_period_s,
+        sigma_m: a.fix_sigma_m,
+        latency_s: a.fix_latency_s,
+        as_if_current: a.fix_as_if_current,
+    });
+    sc.dvl = (!a.no_dvl).then_some(DvlPlan {
+        seafloor_depth_m: a.seafloor_depth_m,
+        dropout_probability: a.dvl_dropout_probability,
+        invalid_probability: a.dvl_invalid_probability,
+        bad_checksum_probability: a.dvl_corrupt_probability,
+        truncate_probability: a.dvl_corrupt_probability,
+        silent_s: a.dvl_silent.map(|w| (w.start_s, w.end_s)),
+        ..DvlPlan::default()
+    });
     let mut f = FaultPlan { depth_nack_probability: a.depth_nack_probability, ..FaultPlan::default() };
     f.imu_nack_s = a.imu_nack.map(|w| (w.start_s, w.end_s));
     f.imu_stuck_axis = a.imu_stuck.map(|s| (s.from_s, s.axis));
@@ -126,14 +171,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match format {
         Format::Json => println!(
             "{}",
-            serde_json::json!({ "scenario": args.out, "duration_s": sc.duration_s, "seed": sc.seed, "position_fixes": fixes })
+            serde_json::json!({ "scenario": args.out, "duration_s": sc.duration_s, "seed": sc.seed, "position_fixes": fixes, "dvl": sc.dvl.is_some() })
         ),
         Format::Text => println!(
-            "scenario {}: {:.0} s dive, seed {}, survey at {} m, {} position fixes; run it with `subnav run {}`",
+            "scenario {}: {:.0} s dive, seed {}, survey at {} m, {}, {} position fixes; run it with `subnav run {}`",
             args.out.display(),
             sc.duration_s,
             sc.seed,
             sc.survey.depth_m,
+            if sc.dvl.is_some() { "DVL on" } else { "no DVL" },
             fixes,
             args.out.display()
         ),

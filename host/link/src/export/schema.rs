@@ -31,7 +31,7 @@ fn tagged(variants: &[&str]) -> Value {
 }
 
 /// The uplink message kinds (as `Uplink::kind`) in export order.
-pub const KINDS: [&str; 9] = ["boot", "nav", "raw.imu", "raw.polarization", "raw.depth", "compass", "health", "fault", "ack"];
+pub const KINDS: [&str; 10] = ["boot", "nav", "raw.imu", "raw.polarization", "raw.depth", "raw.dvl", "compass", "health", "fault", "ack"];
 
 /// Schema name and JSON Schema of a message kind.
 pub fn for_kind(kind: &str) -> Option<(String, Value)> {
@@ -66,6 +66,18 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             &[("t_us", t), ("unit", int()), ("counts", json!({"type": "array", "items": int(), "minItems": 4, "maxItems": 4}))],
         ),
         "raw.depth" => obj("subnav.DepthSample", &[("t_us", t), ("pressure_pa", num()), ("temp_c", num()), ("depth_m", num())]),
+        "raw.dvl" => obj(
+            "subnav.DvlSample",
+            &[
+                ("t_us", t),
+                ("rx_us", int()),
+                ("tracking", tagged(&["Bottom", "Water"])),
+                ("valid", json!({"type": "boolean"})),
+                ("vel_dvl_mps", arr(3)),
+                ("fom_mps", num()),
+                ("altitude_m", num()),
+            ],
+        ),
         "compass" => obj(
             "subnav.CompassReport",
             &[
@@ -89,6 +101,8 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("pd_repairs", int()),
                 ("gate_rejects", int()),
                 ("nonfinite_rejects", int()),
+                ("late_fused", int()),
+                ("late_refused", int()),
                 ("cpu_load_permille", int()),
             ],
         ),
@@ -96,7 +110,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             "subnav.Fault",
             &[
                 ("t_us", t),
-                ("source", tagged(&["Imu", "Depth", "Link", "Filter", "Scheduler", "Polarization"])),
+                ("source", tagged(&["Imu", "Depth", "Dvl", "Link", "Filter", "Scheduler", "Polarization"])),
                 (
                     "kind",
                     tagged(&[
@@ -111,6 +125,11 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                         "CorruptFrame",
                         "Overrun",
                         "TelemetryDropped",
+                        "Occluded",
+                        "Malformed",
+                        "Invalid",
+                        "TooOld",
+                        "FromFuture",
                     ]),
                 ),
                 ("count", int()),
@@ -131,6 +150,7 @@ pub fn message_json(m: &Uplink, t_host_us: u64) -> Value {
         Uplink::Raw(RawSample::Imu(x)) => serde_json::to_value(x),
         Uplink::Raw(RawSample::Polarization(x)) => serde_json::to_value(x),
         Uplink::Raw(RawSample::Depth(x)) => serde_json::to_value(x),
+        Uplink::Raw(RawSample::Dvl(x)) => serde_json::to_value(x),
         Uplink::Compass(x) => serde_json::to_value(x),
         Uplink::Health(x) => serde_json::to_value(x),
         Uplink::Fault(x) => serde_json::to_value(x),

@@ -473,6 +473,15 @@ impl DvlA50Model {
     }
 }
 
+impl super::UartChip for DvlA50Model {
+    fn read(&mut self, t_us: u64, buf: &mut [u8]) -> usize {
+        DvlA50Model::read(self, t_us, buf)
+    }
+    fn write(&mut self, t_us: u64, bytes: &[u8]) {
+        DvlA50Model::write(self, t_us, bytes)
+    }
+}
+
 /// Shared clock for [`DvlUart`] (µs).
 pub type SimClock = std::sync::Arc<std::sync::atomic::AtomicU64>;
 

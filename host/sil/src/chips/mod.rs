@@ -12,7 +12,8 @@
 //! | [`icm42688::Icm42688Model`] | ICM-42688-P IMU | SPI | [`icm42688::ImuInput`] (body FRD rates / specific force, temperature) |
 //! | [`ads1115::Ads1115Model`] | ADS1115 ADC | I2C 0x48..0x4B | volts on AIN0..AIN3 |
 //! | [`ms5837::Ms5837Model`] | MS5837-30BA | I2C 0x76 | [`ms5837::PressureInput`] (absolute Pa, deg C) |
-//! | [`dvl_a50::DvlA50Model`] | Water Linked DVL-A50 | UART (byte stream; not routed by [`ChipSet`] yet) | [`dvl_a50::DvlInput`] (body velocity and rate, altitude, current) |
+//! | [`dvl_a50::DvlA50Model`] | Water Linked DVL-A50 | UART 0 | [`dvl_a50::DvlInput`] (body velocity and rate, altitude, current) |
+//! | [`modem::ModemModel`] | acoustic modem / USBL link delivering downlink frames | UART 1 | frames with their arrival times |
 //!
 //! Time: every call carries `t_us`, the firmware's timestamp of the transaction (the bridge's
 //! `BusRequest::t_us`), so a run is deterministic whatever the host's speed.
@@ -39,6 +40,7 @@
 pub mod ads1115;
 pub mod dvl_a50;
 pub mod icm42688;
+pub mod modem;
 pub mod ms5837;
 
 use rand::{Rng, SeedableRng};
@@ -50,6 +52,14 @@ pub use subnav_wire::bridge::BusFault;
 pub use ads1115::Ads1115Model;
 pub use icm42688::{Icm42688Model, ImuInput};
 pub use ms5837::{Ms5837Model, PressureInput};
+
+/// A serial instrument on a UART: bytes fully received by `t_us` come out, commands go in.
+pub trait UartChip: Send {
+    /// Copy up to `buf.len()` bytes received by `t_us`; returns how many.
+    fn read(&mut self, t_us: u64, buf: &mut [u8]) -> usize;
+    /// Bytes the firmware sent at `t_us`.
+    fn write(&mut self, t_us: u64, bytes: &[u8]);
+}
 
 /// A chip on an I2C bus.
 pub trait I2cChip: Send {
@@ -149,6 +159,7 @@ impl BusFaults {
 pub struct ChipSet {
     i2c: Vec<(u8, Box<dyn I2cChip>)>,
     spi: Vec<(u8, u8, Box<dyn SpiChip>)>,
+    uart: Vec<(u8, Box<dyn UartChip>)>,
     /// Transactions served per kind: ok, failed.
     pub served: [u64; 2],
 }
@@ -167,6 +178,12 @@ impl ChipSet {
     /// Attach an SPI chip to bus `bus`, chip select `cs`.
     pub fn attach_spi(&mut self, bus: u8, cs: u8, chip: impl SpiChip + 'static) -> &mut Self {
         self.spi.push((bus, cs, Box::new(chip)));
+        self
+    }
+
+    /// Attach a serial instrument to UART `port`.
+    pub fn attach_uart(&mut self, port: u8, chip: impl UartChip + 'static) -> &mut Self {
+        self.uart.push((port, Box::new(chip)));
         self
     }
 
@@ -205,6 +222,24 @@ impl ChipSet {
                 })();
                 chip.end(t);
                 r.map(|()| data)
+            }
+            Bus::Uart { port } => {
+                // Nothing attached: a silent line (a UART has no acknowledge), not a fault.
+                let Some(chip) = self.uart.iter_mut().find(|(p, _)| *p == port).map(|(_, c)| c) else { return Ok(data) };
+                for op in ops {
+                    match op {
+                        Op::Write(bytes) => chip.write(t, bytes.as_slice()),
+                        Op::Read { len } => {
+                            let out = buf.get_mut(..usize::from(*len)).ok_or(BusFault::Other)?;
+                            let n = chip.read(t, out).min(out.len());
+                            if !data.push(&out[..n]) {
+                                return Err(BusFault::Other);
+                            }
+                        }
+                        Op::Transfer(_) => return Err(BusFault::Other),
+                    }
+                }
+                Ok(data)
             }
             Bus::Spi { bus, cs } => {
                 let chip = self.spi.iter_mut().find(|(b, c, _)| *b == bus && *c == cs).map(|(_, _, c)| c).ok_or(BusFault::Nack)?;
