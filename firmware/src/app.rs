@@ -675,8 +675,8 @@ mod tests {
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Dvl, kind: FaultKind::Invalid, .. }))));
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Dvl, kind: FaultKind::Malformed, .. }))));
         let e = app.estimator();
-        // Fused: the valid reports after the alignment (which ends 1-10 s after boot).
-        assert!(e.dvl_fused > 80 && e.dvl_fused < 130, "{}", e.dvl_fused);
+        // Fused: the valid reports after the alignment (10 s here: no compass fix in unpolarized light).
+        assert!(e.dvl_fused > 70 && e.dvl_fused < 130, "{}", e.dvl_fused);
         let h = e.health(30_000_000);
         assert!(h.late_fused >= e.dvl_fused, "every DVL report is 0.2 s late: {h:?}");
         let nav = e.solution(30_000_000);

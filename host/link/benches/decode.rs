@@ -35,6 +35,8 @@ fn message(i: usize) -> Uplink {
             pd_repairs: 0,
             gate_rejects: 3,
             nonfinite_rejects: 0,
+            late_fused: 0,
+            late_refused: 0,
             cpu_load_permille: 250,
         }),
         2 | 3 | 4 => {

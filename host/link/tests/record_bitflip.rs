@@ -46,6 +46,8 @@ fn message(r: &mut Rng) -> Uplink {
             pd_repairs: r.next() as u32,
             gate_rejects: 3,
             nonfinite_rejects: 0,
+            late_fused: 0,
+            late_refused: 0,
             cpu_load_permille: 250,
         }),
         2 => Uplink::Raw(RawSample::Imu(ImuSample {

@@ -35,6 +35,11 @@ pub struct DiveResult {
     pub heading_rmse_all_aided_deg: f64,
     pub horizontal_rms_err_m: f64,
     pub horizontal_final_err_m: f64,
+    pub horizontal_max_err_m: f64,
+    /// Horizontal distance the truth travelled from boot to the last aided sample, m.
+    pub distance_m: f64,
+    /// `horizontal_final_err_m` as a percentage of `distance_m`.
+    pub final_err_pct_of_distance: f64,
     pub depth_rmse_m: f64,
     /// Fraction of aided samples whose horizontal error is within 3 sigma of the filter's own
     /// reported position uncertainty (per axis, north and east).
@@ -137,6 +142,9 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         heading_rmse_all_aided_deg: f64::NAN,
         horizontal_rms_err_m: f64::NAN,
         horizontal_final_err_m: f64::NAN,
+        horizontal_max_err_m: 0.0,
+        distance_m: 0.0,
+        final_err_pct_of_distance: f64::NAN,
         depth_rmse_m: f64::NAN,
         within_3_sigma: f64::NAN,
         nonfinite_values: 0,
@@ -151,6 +159,7 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
     let (mut sh, mut sp, mut sd, mut inside) = (0.0, 0.0, 0.0, 0usize);
     let (mut sh_conv, mut n_conv, mut h_inside) = (0.0, 0usize, 0usize);
     let (mut sc2, mut sr, mut nr) = (0.0, 0.0, 0usize);
+    let mut last_aided_s = 0.0f64;
     for m in msgs {
         match m {
             Uplink::Nav(n) => {
@@ -184,6 +193,8 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
                     }
                 }
                 r.horizontal_final_err_m = (en * en + ee * ee).sqrt();
+                r.horizontal_max_err_m = r.horizontal_max_err_m.max(r.horizontal_final_err_m);
+                last_aided_s = t;
                 if en.abs() <= 3.0 * n.sigma_pos_m[0] as f64 && ee.abs() <= 3.0 * n.sigma_pos_m[1] as f64 {
                     inside += 1;
                 }
@@ -224,6 +235,12 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         r.horizontal_rms_err_m = (sp / n).sqrt();
         r.depth_rmse_m = (sd / n).sqrt();
         r.within_3_sigma = inside as f64 / n;
+    }
+    // Distance: the truth's horizontal speed integrated at 0.1 s.
+    let steps = (last_aided_s / 0.1).floor() as u64;
+    r.distance_m = (0..steps).map(|k| traj.at(k as f64 * 0.1 + 0.05).vel_ned_mps.xy().norm() * 0.1).sum();
+    if r.distance_m > 0.0 {
+        r.final_err_pct_of_distance = 100.0 * r.horizontal_final_err_m / r.distance_m;
     }
     if n_conv > 0 {
         r.heading_rmse_deg = (sh_conv / n_conv as f64).sqrt();

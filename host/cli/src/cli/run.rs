@@ -37,6 +37,10 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Run the scenario once per seed (`N`, `A..B`, `A..=B`; native only) and print one line
+    /// per seed and the mean of each figure.
+    #[arg(long, value_parser = super::args::parse_seeds, requires = "native", conflicts_with_all = ["record", "truth"])]
+    pub seeds: Option<super::args::Seeds>,
 }
 
 fn load(path: &PathBuf) -> Result<Scenario> {
@@ -49,8 +53,67 @@ fn load(path: &PathBuf) -> Result<Scenario> {
     Ok(sc)
 }
 
+/// `--seeds`: one native run per seed, a line each, then the means.
+fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Result<ExitCode> {
+    let mut rows = Vec::new();
+    if format == Format::Text {
+        println!("seed  horiz RMS m  final m  max m  final % dist  within 3 sigma %  heading RMSE deg");
+    }
+    let mut ok = true;
+    for seed in seeds.range() {
+        let sc = Scenario { seed, ..sc.clone() };
+        let run = run_native(&sc, None);
+        let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
+        ok &= r.nonfinite_values == 0;
+        if format == Format::Text {
+            println!(
+                "{seed:>4}  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}",
+                r.horizontal_rms_err_m,
+                r.horizontal_final_err_m,
+                r.horizontal_max_err_m,
+                r.final_err_pct_of_distance,
+                100.0 * r.within_3_sigma,
+                r.heading_rmse_deg
+            );
+        }
+        rows.push((seed, r));
+    }
+    let n = rows.len().max(1) as f64;
+    let mean = |f: &dyn Fn(&DiveResult) -> f64| rows.iter().map(|(_, r)| f(r)).sum::<f64>() / n;
+    let means = serde_json::json!({
+        "horizontal_rms_err_m": mean(&|r| r.horizontal_rms_err_m),
+        "horizontal_final_err_m": mean(&|r| r.horizontal_final_err_m),
+        "horizontal_max_err_m": mean(&|r| r.horizontal_max_err_m),
+        "final_err_pct_of_distance": mean(&|r| r.final_err_pct_of_distance),
+        "within_3_sigma": mean(&|r| r.within_3_sigma),
+        "heading_rmse_deg": mean(&|r| r.heading_rmse_deg),
+    });
+    match format {
+        Format::Json => {
+            let runs: Vec<_> = rows.iter().map(|(s, r)| serde_json::json!({"seed": s, "result": r})).collect();
+            println!("{}", serde_json::json!({"runs": runs, "mean": means}));
+        }
+        Format::Text => println!(
+            "mean  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}",
+            means["horizontal_rms_err_m"].as_f64().unwrap_or(f64::NAN),
+            means["horizontal_final_err_m"].as_f64().unwrap_or(f64::NAN),
+            means["horizontal_max_err_m"].as_f64().unwrap_or(f64::NAN),
+            means["final_err_pct_of_distance"].as_f64().unwrap_or(f64::NAN),
+            100.0 * means["within_3_sigma"].as_f64().unwrap_or(f64::NAN),
+            means["heading_rmse_deg"].as_f64().unwrap_or(f64::NAN),
+        ),
+    }
+    if !ok {
+        eprintln!("error: a run produced non-finite estimates");
+    }
+    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let sc = load(&args.scenario)?;
+    if let Some(seeds) = &args.seeds {
+        return run_seeds(&sc, seeds, format);
+    }
     let pb = if args.quiet || format == Format::Json { ProgressBar::hidden() } else { ProgressBar::new(sc.duration_s.ceil() as u64) };
     if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} s ({eta})") {
         pb.set_style(style.progress_chars("=> "));
@@ -101,9 +164,12 @@ fn print_summary(r: &DiveResult) {
         r.heading_rmse_all_aided_deg
     );
     println!(
-        "horizontal position   RMS {:.2} m, final {:.2} m, {:.1} % within 3 sigma",
+        "horizontal position   RMS {:.2} m, final {:.2} m ({:.3} % of {:.0} m travelled), max {:.2} m, {:.1} % within 3 sigma",
         r.horizontal_rms_err_m,
         r.horizontal_final_err_m,
+        r.final_err_pct_of_distance,
+        r.distance_m,
+        r.horizontal_max_err_m,
         100.0 * r.within_3_sigma
     );
     println!("depth                 RMSE {:.3} m (raw sensor {:.4} m)", r.depth_rmse_m, r.raw_depth_rmse_m);
