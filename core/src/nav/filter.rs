@@ -7,7 +7,9 @@ use crate::ukf::gate::chi2_999;
 use crate::ukf::{AdaptConfig, MeasNoise, Ukf, UkfConfig, UkfError, UpdateReport};
 use subnav_wire::messages::{ImuSample, NavMode, NavSolution};
 
-use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, set_seg, yaw_of};
+use super::history::{CURRENT_WITHIN_US, History, PastEpoch, Snapshot, interval};
+use super::rotation::quat_from_rotation_vector;
+use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, seg, set_seg, yaw_of};
 use super::strapdown::{self, Increments};
 
 /// Update kinds, in the order of `FilterHealth::nis` / `r_diag`.
@@ -96,6 +98,9 @@ pub struct NavConfig {
     pub position: SensorConfig,
     /// Mode falls back to `Inertial` when no aiding update was accepted for this long.
     pub aided_timeout_s: f32,
+    /// A position or velocity measurement stamped more than this after the filter time is
+    /// refused (`NavError::FromFuture`); up to it, it is fused as current. µs.
+    pub max_future_us: u64,
 }
 
 impl Default for NavConfig {
@@ -161,6 +166,7 @@ impl Default for NavConfig {
                 fading_mask: bits(&[3, 4, 5, 6, 7, 8]),
             },
             aided_timeout_s: 5.0,
+            max_future_us: 200_000,
         }
     }
 }
@@ -221,6 +227,12 @@ pub enum NavError {
     BadTime,
     /// The UKF refused the step (state untouched).
     Filter(UkfError),
+    /// Measurement valid before the oldest entry of the state history (see
+    /// [`super::history`]): refused, state untouched, counted.
+    TooOld,
+    /// Measurement stamped more than `NavConfig::max_future_us` after the filter time: refused,
+    /// state untouched, counted.
+    FromFuture,
 }
 
 impl core::fmt::Display for NavError {
@@ -230,6 +242,8 @@ impl core::fmt::Display for NavError {
             NavError::NonFinite => f.write_str("sample is NaN, infinite or implausibly large: rejected"),
             NavError::BadTime => f.write_str("sample time not after the previous one, or the IMU gap exceeds max_imu_dt_s"),
             NavError::Filter(e) => write!(f, "the UKF refused the step: {e}"),
+            NavError::TooOld => f.write_str("measurement valid before the oldest entry of the state history: too old to fuse"),
+            NavError::FromFuture => f.write_str("measurement stamped further in the future than max_future_us: refused"),
         }
     }
 }
@@ -271,6 +285,10 @@ pub struct NavFilter<const N: usize, const S: usize> {
     pub(crate) imu_rejects: u32,
     pub(crate) time_rejects: u32,
     pub(crate) lambda: f32,
+    /// Past nominal states for measurements fused at their own time (see [`super::history`]).
+    pub(crate) hist: History,
+    pub(crate) delayed_updates: u32,
+    pub(crate) delay_rejects: u32,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -301,8 +319,12 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             imu_rejects: 0,
             time_rejects: 0,
             lambda: 1.0,
+            hist: History::new(),
+            delayed_updates: 0,
+            delay_rejects: 0,
         }
-        .with_k0(cfg.ukf.adapt.k0))
+        .with_k0(cfg.ukf.adapt.k0)
+        .with_history())
     }
 
     /// Re-initialise in place, exactly as [`NavFilter::new`] would build the filter (on failure
@@ -330,6 +352,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.imu_rejects = 0;
         self.time_rejects = 0;
         self.lambda = 1.0;
+        self.hist.restart(self.t_us, &self.nom);
+        self.delayed_updates = 0;
+        self.delay_rejects = 0;
         Ok(())
     }
 
@@ -360,6 +385,11 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             group_diag(&mut p0, MARKOV, cfg.markov_sigma * cfg.markov_sigma);
         }
         Ok((nom, p0))
+    }
+
+    fn with_history(mut self) -> Self {
+        self.hist.restart(self.t_us, &self.nom);
+        self
     }
 
     fn with_k0(mut self, k0: u32) -> Self {
@@ -398,6 +428,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let Some(last) = self.last_imu_t_us else {
             self.last_imu_t_us = Some(imu.t_us);
             self.t_us = imu.t_us;
+            self.hist.restart(self.t_us, &self.nom);
             return Ok(());
         };
         if imu.t_us <= last {
@@ -408,6 +439,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.last_imu_t_us = Some(imu.t_us);
         self.t_us = imu.t_us;
         if dt > self.cfg.max_imu_dt_s {
+            // The nominal did not move across the gap: the past before it is no trajectory.
+            self.hist.restart(self.t_us, &self.nom);
             self.time_rejects = self.time_rejects.saturating_add(1);
             return Err(NavError::BadTime);
         }
@@ -423,6 +456,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if self.inc.samples >= self.cfg.cov_decimation.max(1) {
             self.cov_predict()?;
         }
+        self.hist.record(self.t_us, &self.nom);
         Ok(())
     }
 
@@ -482,10 +516,14 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.nom = nom;
         self.t_us = t_us;
         self.last_imu_t_us = Some(t_us);
-        self.inject()
+        self.hist.mark_coast(t_us);
+        self.inject()?;
+        self.hist.record(self.t_us, &self.nom);
+        Ok(())
     }
 
-    /// Fold the error mean into the nominal state and reset it.
+    /// Fold the error mean into the nominal state and reset it; the same correction, mapped back
+    /// to each entry's time, goes into the state history.
     pub(crate) fn inject(&mut self) -> Result<(), NavError> {
         let dx = *self.ukf.x();
         let mut nom = self.nom;
@@ -493,9 +531,32 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if !nom.is_finite() {
             return Err(NavError::NonFinite);
         }
-        self.nom = nom;
         self.ukf.set_x(SVector::zeros())?;
+        let ok = self.correct_history(&dx);
+        self.nom = nom;
+        if !ok {
+            // Not reachable with a finite state; an emptied history refuses delayed updates.
+            self.hist.restart(self.t_us, &self.nom);
+        }
         Ok(())
+    }
+
+    /// Apply the error mean `dx` (at the filter time, against the nominal before its injection)
+    /// to every history entry (see [`super::history`]).
+    fn correct_history(&mut self, dx: &SVector<f32, N>) -> bool {
+        if dx.iter().all(|v| *v == 0.0) {
+            return true;
+        }
+        let (now, t_now, g, tau) = (self.nom, self.t_us, self.cfg.gravity_mps2, self.cfg.markov_tau_s);
+        let coast_end = self.hist.coast_end_us();
+        self.hist.correct(|e| {
+            let coasted = coast_end.is_some_and(|c| e.t_us < c);
+            let (inc, growth) = interval(e, t_now, &now, coasted, g, tau);
+            let d = strapdown::retrodict_error(dx, &inc, growth);
+            let mut att = quat_from_rotation_vector(&seg(&d, ATT)) * e.att_nb;
+            att.renormalize_fast();
+            Snapshot { t_us: e.t_us, att_nb: att, vel_ned_mps: e.vel_ned_mps + seg(&d, VEL), pos_ned_m: e.pos_ned_m + seg(&d, POS) }
+        })
     }
 
     /// Before an aiding update: finite check, flush the partial covariance interval.
@@ -506,16 +567,52 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.cov_predict()
     }
 
-    /// After an aiding update: record, inject.
+    /// Where a measurement valid at `t_m_us` is fused (rules in [`super::history`]):
+    /// `Ok(false)` as current, `Ok(true)` at its own past time; `TooOld` / `FromFuture` refused
+    /// and counted, state untouched.
+    pub(crate) fn check_time(&mut self, t_m_us: u64) -> Result<bool, NavError> {
+        if t_m_us > self.t_us.saturating_add(self.cfg.max_future_us) {
+            self.delay_rejects = self.delay_rejects.saturating_add(1);
+            return Err(NavError::FromFuture);
+        }
+        if t_m_us.saturating_add(CURRENT_WITHIN_US) >= self.t_us {
+            return Ok(false);
+        }
+        match self.hist.oldest_t_us() {
+            Some(t0) if t_m_us >= t0 => Ok(true),
+            _ => {
+                self.delay_rejects = self.delay_rejects.saturating_add(1);
+                Err(NavError::TooOld)
+            }
+        }
+    }
+
+    /// The nominal at `t_m_us` and the interval back to it (after [`Self::check_time`] said
+    /// delayed and the partial covariance interval was flushed).
+    pub(crate) fn past_epoch(&mut self, t_m_us: u64) -> Result<PastEpoch, NavError> {
+        match self.hist.epoch(t_m_us, self.t_us, &self.nom, self.cfg.gravity_mps2, self.cfg.markov_tau_s) {
+            Some(e) => Ok(e),
+            None => {
+                self.delay_rejects = self.delay_rejects.saturating_add(1);
+                Err(NavError::TooOld)
+            }
+        }
+    }
+
+    /// After an aiding update: record, inject (`delayed`: fused at its own past time).
     pub(crate) fn end_update(
         &mut self,
         kind: usize,
         t_us: u64,
         r: Result<UpdateReport<f32>, UkfError>,
+        delayed: bool,
     ) -> Result<UpdateReport<f32>, NavError> {
         let rep = r?;
         if let Some(n) = self.nis.get_mut(kind) {
             *n = rep.nis;
+        }
+        if rep.accepted && delayed {
+            self.delayed_updates = self.delayed_updates.saturating_add(1);
         }
         if rep.accepted {
             self.lambda = rep.lambda;
@@ -561,6 +658,19 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// IMU samples with a bad time stamp (not increasing, or a gap).
     pub fn time_rejects(&self) -> u32 {
         self.time_rejects
+    }
+    /// Measurements accepted at their own past time of validity (see [`super::history`]).
+    pub fn delayed_updates(&self) -> u32 {
+        self.delayed_updates
+    }
+    /// Measurements refused for their time: older than the history (`TooOld`) or too far in
+    /// the future (`FromFuture`).
+    pub fn delay_rejects(&self) -> u32 {
+        self.delay_rejects
+    }
+    /// The state history for delayed measurements.
+    pub fn history(&self) -> &History {
+        &self.hist
     }
 
     pub fn mode(&self) -> NavMode {
