@@ -277,8 +277,20 @@ fn too_old_and_from_the_future_are_refused_with_the_state_untouched() {
 #[test]
 fn history_stays_on_its_grid_and_an_imu_gap_restarts_it() {
     let mut nav = filter();
-    // Just after new: one entry, the start.
-    assert_eq!(nav.history().len(), 1);
+    // Just after new and the first sample: one entry, the start.
+    assert_eq!((nav.history().len(), nav.history().oldest_t_us()), (1, Some(0)));
+    // A first sample within max_imu_dt_s of the initial time keeps the initial entry; one later
+    // than that restarts the history at its own time.
+    let init = NavInit { t_us: 1_000, att_nb: UnitQuaternion::identity(), vel_ned_mps: Vector3::zeros(), pos_ned_m: Vector3::zeros() };
+    let mut a = NavFilter15::new(NavConfig::default(), init).unwrap();
+    a.propagate(&imu(1)).unwrap();
+    assert_eq!((a.history().len(), a.history().oldest_t_us()), (1, Some(1_000)));
+    a.propagate(&imu(2)).unwrap();
+    assert!(a.update_position(5_000, [0.0, 0.0, 0.0], FIX_COV).is_ok());
+    assert_eq!(a.delayed_updates(), 1);
+    let mut b = NavFilter15::new(NavConfig::default(), init).unwrap();
+    b.propagate(&imu(30)).unwrap();
+    assert_eq!((b.history().len(), b.history().oldest_t_us()), (1, Some(300_000)));
     run(&mut nav, 1, 700);
     let h = nav.history();
     assert_eq!(h.len(), HISTORY_LEN);
@@ -393,4 +405,44 @@ fn print_filter_size() {
         core::mem::size_of::<super::history::History>(),
         core::mem::size_of::<super::history::Snapshot>()
     );
+}
+
+#[inline(never)]
+fn bench_fix_current(nav: &mut NavFilter15, t: u64, z: [f32; 3]) -> bool {
+    nav.update_position(t, z, FIX_COV).is_ok_and(|r| r.accepted)
+}
+#[inline(never)]
+fn bench_fix_late(nav: &mut NavFilter15, t: u64, z: [f32; 3]) -> bool {
+    nav.update_position(t, z, FIX_COV).is_ok_and(|r| r.accepted)
+}
+#[inline(never)]
+fn bench_dvl_current(nav: &mut NavFilter15, m: &DvlMeasurement) -> bool {
+    nav.update_dvl(m, &mount()).is_ok_and(|r| r.accepted)
+}
+#[inline(never)]
+fn bench_dvl_late(nav: &mut NavFilter15, m: &DvlMeasurement) -> bool {
+    nav.update_dvl(m, &mount()).is_ok_and(|r| r.accepted)
+}
+
+/// Cost of a delayed update against a current one, under callgrind: compare the inclusive
+/// instruction counts of `bench_fix_current` / `bench_fix_late` / `bench_dvl_*` (200 calls
+/// each) and of `NavFilter::correct_history` (per injection with a full history).
+#[test]
+#[ignore = "for callgrind: cargo test -p subnav-core --features std --lib -- --ignored delayed_update_cost"]
+fn delayed_update_cost() {
+    let mut nav = filter_with(true);
+    run(&mut nav, 1, 600);
+    let k = 600u64;
+    let t = nav.t_us();
+    let (z, z_late) = (fix_at(k), fix_at(k - 200));
+    let (m, m_late) = (dvl_at(k, &mount()), dvl_at(k - 30, &mount()));
+    let mut n = 0u32;
+    for _ in 0..200 {
+        n += u32::from(bench_fix_current(&mut nav, t, z));
+        n += u32::from(bench_fix_late(&mut nav, t - 2_000_000, z_late));
+        n += u32::from(bench_dvl_current(&mut nav, &m));
+        n += u32::from(bench_dvl_late(&mut nav, &m_late));
+    }
+    assert_eq!(nav.delayed_updates(), 400);
+    println!("{n} of 800 accepted");
 }
