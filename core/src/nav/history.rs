@@ -40,10 +40,16 @@
 //! 1 mrad over 3 s) and the attitude drift from the gyro-bias error (3 cm/s for 0.5 mrad/s over
 //! 3 s), both in [`super::strapdown::retrodict_error`].
 //!
-//! **Keeping the past consistent.** Every injection of an error mean `dx` at `t_now` is applied to
-//! every entry too, mapped back to the entry's time by the same `retrodict_error`, so a later
+//! **Keeping the past consistent.** Every injection of an error mean `dx` at `t_now` (after a
+//! measurement update, and after a UKF predict or coast step too) is applied to every entry,
+//! mapped back to the entry's time by the same map (`NavFilter::correct_history`: that of
+//! `retrodict_error`, with the bias part of the attitude to first order). Two reasons: a later
 //! delayed measurement is compared with a past the filter has already corrected (the same
-//! information fused twice moves the state by the second fusion's share only, not twice).
+//! information fused twice moves the state by the second fusion's share only, not twice), and
+//! the increments above are *differences* of nominal states, so a change of the current nominal
+//! that did not reach the past would be counted as specific force (measured: leaving the
+//! predicts' means out of the history made the 3 s late fix of `delay_tests` end 7.5 mm instead
+//! of 0.7 mm from the on-time one).
 //!
 //! **Why this and not the alternatives** (RAM on the MCU: firmware <= 32 KiB including stack,
 //! 29.4 KiB used before this module):
@@ -53,8 +59,15 @@
 //!   30 (at 10 Hz) to 60 predicts per fix at ~158k instructions each (docs/PERFORMANCE.md,
 //!   `nav.propagate_with_ukf_predict`) = 4.7-9.5 M instructions in one call, tens of ms on the
 //!   M4F, and the 15 x 15 covariance per stored step (900 B each) on top.
-//! - this one: 41 x 48 B = 1.97 KB, and per delayed update one interpolation plus one mapping per
-//!   sigma point (31 x a few hundred instructions); per injection, one mapping per entry.
+//! - this one: 41 x 48 B = 1.97 KB (`NavFilter15` 5920 -> 7944 B), no stored covariance.
+//!   Cost, x86-64 instruction counts of the release build under callgrind
+//!   (`delay_tests::delayed_update_cost`, 200 updates each): a delayed update costs 14.4k more
+//!   than a current one (position fix 53.3k -> 67.7k, DVL 60.5k -> 74.9k: the mapping of the 31
+//!   sigma points, 430 each, and the interpolation, 1.1k); every injection (accepted update or
+//!   UKF predict) corrects the full history for 20.8k (~510 per entry), which the current
+//!   updates above include. At the head's rates (~10 predicts + ~15 accepted updates per
+//!   second) that is ~0.5M instructions/s; the target's own counts (`cargo xtask bench-target`)
+//!   were not measured for this change.
 //!
 //! **Time rules** (`NavFilter::update_position`, `update_dvl`, `update_body_velocity`):
 //! stamped more than `NavConfig::max_future_us` after the filter time: `NavError::FromFuture`;
@@ -96,8 +109,12 @@ impl Snapshot {
         Self { t_us, att_nb: nom.att_nb, vel_ned_mps: nom.vel_ned_mps, pos_ned_m: nom.pos_ned_m }
     }
 
+    /// All components finite (by their sum: NaN and infinities propagate; a sum that overflows
+    /// from finite parts of ~1e38 counts as not finite, which only empties the history).
     fn is_finite(&self) -> bool {
-        self.att_nb.coords.iter().chain(self.vel_ned_mps.iter()).chain(self.pos_ned_m.iter()).all(|v| v.is_finite())
+        let q = &self.att_nb.coords;
+        let (v, p) = (&self.vel_ned_mps, &self.pos_ned_m);
+        (q.x + q.y + q.z + q.w + v.x + v.y + v.z + p.x + p.y + p.z).is_finite()
     }
 
     /// Linear interpolation at `t_us` between `self` (earlier) and `b` (later); attitude by
