@@ -168,6 +168,36 @@ fn a_fix_three_seconds_late_ends_where_the_same_fix_on_time_does() {
     assert!(d_cur > 2.0 && d_cur > 50.0 * d_late, "as-current {d_cur} m vs late {d_late} m");
 }
 
+#[test]
+fn the_18_state_filter_fuses_a_late_fix_like_an_on_time_one() {
+    let mk = || {
+        let cfg =
+            NavConfig { init_sigma_pos_m: 10.0, init_sigma_vel_mps: 0.5, init_sigma_att_rad: [0.003, 0.003, 0.05], ..NavConfig::default() };
+        let t = truth_init();
+        let init = NavInit { t_us: 0, att_nb: t.att_nb, vel_ned_mps: t.vel_ned_mps, pos_ned_m: t.pos_ned_m + Vector3::new(5.0, 3.0, 0.0) };
+        let mut nav = NavFilter18::new(cfg, init).unwrap();
+        nav.propagate(&imu(0)).unwrap();
+        nav
+    };
+    let (k_m, k_late, k_end) = (1000u64, 1250u64, 1400u64);
+    let z = fix_at(k_m);
+    let (mut a, mut b) = (mk(), mk());
+    for k in 1..=k_end {
+        a.propagate(&imu(k)).unwrap();
+        b.propagate(&imu(k)).unwrap();
+        if k == k_m {
+            assert!(a.update_position(k_m * DT_US, z, FIX_COV).unwrap().accepted);
+        }
+        if k == k_late {
+            assert!(b.update_position(k_m * DT_US, z, FIX_COV).unwrap().accepted);
+        }
+    }
+    let d = (a.nominal().pos_ned_m - b.nominal().pos_ned_m).norm();
+    assert_eq!(b.delayed_updates(), 1);
+    assert!(d < 0.005, "18-state: late fix ends {d} m from the on-time one");
+    assert!(b.nominal().gyro_markov_radps.iter().all(|v| v.is_finite()));
+}
+
 fn dvl_at(k: u64, nav_mount: &DvlMounting) -> DvlMeasurement {
     // True body velocity: (u, 0, 0) plus w x l, in DVL axes; no noise (the filter's R is 5 cm/s).
     let t = truth(k);

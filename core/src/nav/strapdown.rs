@@ -20,7 +20,7 @@
 //! first order in the bias errors over one interval.
 
 use super::rotation::quat_from_rotation_vector;
-use nalgebra::{Matrix3, SVector, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, SVector, Vector3};
 
 use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, seg, set_seg};
 
@@ -110,11 +110,23 @@ pub fn propagate_error<const N: usize>(dx: &SVector<f32, N>, inc: &Increments, m
 /// force that is constant over the interval: gravity, mostly).
 /// `Log(Exp(phi) Exp(b))` is taken to second order, `phi + b + phi x b / 2`.
 pub fn retrodict_error<const N: usize>(dx: &SVector<f32, N>, inc: &Increments, markov_growth: f32) -> SVector<f32, N> {
-    let dba = seg(dx, BA);
+    let (phi, dba) = (seg(dx, ATT), seg(dx, BA));
     let eps_m = seg(dx, MARKOV) * markov_growth;
     let drift = seg(dx, BG) + eps_m;
-    let terms = RetroTerms { c_drift: inc.c * drift, cc_drift: inc.cc * drift, c_dba: inc.c * dba, cc_dba: inc.cc * dba };
-    let (phi_m, dv_m, dp_m, _) = retrodict_core(&seg(dx, ATT), &seg(dx, VEL), &seg(dx, POS), inc, &terms);
+    let b = inc.c * drift;
+    // Log(Exp(phi) Exp(b)) to second order (Baker-Campbell-Hausdorff).
+    let phi_m = phi + b + phi.cross(&b) * 0.5;
+    // The drift's weighted means: int c(s) ds / T = cc / T for the velocity,
+    // int (T - s) c(s) ds * 2 / T^2 = cc / T - c / 6 for the position (rotation linear in time).
+    let (b_v, b_p) = if inc.dt_s > 0.0 {
+        let v = inc.cc * drift / inc.dt_s;
+        (v, v - b / 6.0)
+    } else {
+        (Vector3::zeros(), Vector3::zeros())
+    };
+    let r = quat_from_rotation_vector(&phi_m).to_rotation_matrix();
+    let dv_m = seg(dx, VEL) - (r * (inc.dv_f - inc.c * dba - b_v.cross(&inc.dv_f)) - inc.dv_f);
+    let dp_m = seg(dx, POS) - dv_m * inc.dt_s - (r * (inc.dp_f - inc.cc * dba - b_p.cross(&inc.dp_f)) - inc.dp_f);
     let mut out = *dx;
     set_seg(&mut out, ATT, &phi_m);
     set_seg(&mut out, VEL, &dv_m);
@@ -123,45 +135,6 @@ pub fn retrodict_error<const N: usize>(dx: &SVector<f32, N>, inc: &Increments, m
         set_seg(&mut out, MARKOV, &eps_m);
     }
     out
-}
-
-/// The bias-error terms of an interval for [`retrodict_core`]: `c (dbg + eps)`, `cc (dbg + eps)`,
-/// `c dba`, `cc dba` (NED).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RetroTerms {
-    pub c_drift: Vector3<f32>,
-    pub cc_drift: Vector3<f32>,
-    pub c_dba: Vector3<f32>,
-    pub cc_dba: Vector3<f32>,
-}
-
-/// [`retrodict_error`] on the attitude, velocity and position errors, with the bias terms
-/// precomputed (the history's correction computes them by rotating the bias errors, without
-/// 3 x 3 products). Uses `inc.dt_s`, `inc.dv_f`, `inc.dp_f`. Returns `(phi_m, dv_m, dp_m,
-/// Exp(phi_m))`.
-pub fn retrodict_core(
-    phi: &Vector3<f32>,
-    dv: &Vector3<f32>,
-    dp: &Vector3<f32>,
-    inc: &Increments,
-    t: &RetroTerms,
-) -> (Vector3<f32>, Vector3<f32>, Vector3<f32>, UnitQuaternion<f32>) {
-    let b = t.c_drift;
-    // Log(Exp(phi) Exp(b)) to second order (Baker-Campbell-Hausdorff).
-    let phi_m = phi + b + phi.cross(&b) * 0.5;
-    // The drift's weighted means: int c(s) ds / T = cc / T for the velocity,
-    // int (T - s) c(s) ds * 2 / T^2 = cc / T - c / 6 for the position (rotation linear in time).
-    let (b_v, b_p) = if inc.dt_s > 0.0 {
-        let v = t.cc_drift / inc.dt_s;
-        (v, v - b / 6.0)
-    } else {
-        (Vector3::zeros(), Vector3::zeros())
-    };
-    let q = quat_from_rotation_vector(&phi_m);
-    let r = q.to_rotation_matrix();
-    let dv_m = dv - (r * (inc.dv_f - t.c_dba - b_v.cross(&inc.dv_f)) - inc.dv_f);
-    let dp_m = dp - dv_m * inc.dt_s - (r * (inc.dp_f - t.cc_dba - b_p.cross(&inc.dp_f)) - inc.dp_f);
-    (phi_m, dv_m, dp_m, q)
 }
 
 #[cfg(test)]
