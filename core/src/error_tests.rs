@@ -31,7 +31,8 @@ fn nav_error() {
         NavError::Filter(UkfError::NotPositiveDefinite),
         NavError::Filter(UkfError::BadConfig),
     ];
-    let mut all: Vec<&dyn core::error::Error> = vec![&NavError::BadConfig, &NavError::NonFinite, &NavError::BadTime];
+    let mut all: Vec<&dyn core::error::Error> =
+        vec![&NavError::BadConfig, &NavError::NonFinite, &NavError::BadTime, &NavError::TooOld, &NavError::FromFuture];
     all.extend(filter.iter().map(|e| e as &dyn core::error::Error));
     assert_distinct_messages("NavError", &all);
     // The wrapped UKF error is the source and appears in the message.

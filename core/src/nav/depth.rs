@@ -25,6 +25,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         }
         let nom = self.nom;
         let r = self.ukf.update::<1, Euclidean, _>(&Vector1::new(depth_m), &mut self.noise_depth, |dx| h_depth(&nom, dx));
-        self.end_update(KIND_DEPTH, t_us, r)
+        self.end_update(KIND_DEPTH, t_us, r, false)
     }
 }

@@ -100,7 +100,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Fuse one DVL bottom-track velocity (see the module doc). Non-finite or implausible input
     /// (velocity, covariance, figure of merit, gyro, mounting) and a covariance that is not
     /// positive definite are refused (`NavError::NonFinite`, counted, state untouched); a
-    /// measurement outside the gate is reported with `accepted = false`.
+    /// measurement outside the gate is reported with `accepted = false`. The velocity is fused at
+    /// its time of validity `m.t_us` (see [`super::history`]: `NavError::TooOld` /
+    /// `NavError::FromFuture` refused and counted, state untouched).
     pub fn update_dvl(&mut self, m: &DvlMeasurement, mount: &DvlMounting) -> Result<UpdateReport<f32>, NavError> {
         let cov = m.covariance_m2ps2.unwrap_or([0.0; 9]);
         let finite = m.vel_dvl_mps.iter().chain(cov.iter()).chain(m.gyro_radps.iter()).all(|v| v.is_finite())
@@ -112,18 +114,24 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let Ok(noise) = reported_noise(m) else {
             return Err(self.reject_nonfinite());
         };
+        let delayed = self.check_time(m.t_us)?;
         self.begin_update(&[])?;
         if let Some(r) = noise {
             if !(self.cfg.ukf.adapt.r_cov && self.noise_vel.adapt) {
                 self.noise_vel.r = r;
             }
         }
-        let nom = self.nom;
         let gyro = Vector3::from(m.gyro_radps);
         let z = Vector3::from(m.vel_dvl_mps);
         let mount = *mount;
-        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_dvl(&nom, dx, &mount, &gyro));
-        self.end_update(KIND_VELOCITY, m.t_us, r)
+        let r = if delayed {
+            let ep = self.past_epoch(m.t_us)?;
+            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_dvl(&ep.nom, &ep.map(dx), &mount, &gyro))
+        } else {
+            let nom = self.nom;
+            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_dvl(&nom, dx, &mount, &gyro))
+        };
+        self.end_update(KIND_VELOCITY, m.t_us, r, delayed)
     }
 }
 

@@ -32,7 +32,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let nom = self.nom;
         let z = Vector1::new(crate::ukf::wrap_pi(heading_rad));
         let r = self.ukf.update::<1, AngleSpace, _>(&z, &mut self.noise_heading, |dx| h_heading(&nom, dx));
-        self.end_update(KIND_HEADING, t_us, r)
+        self.end_update(KIND_HEADING, t_us, r, false)
     }
 }
 
@@ -82,6 +82,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         }
         self.ukf.set_p(p)?;
         self.nom = nom;
+        // The nominal frame turned: the recorded past is no longer the same trajectory.
+        self.hist.restart(self.t_us, &self.nom);
         let k0 = self.cfg.ukf.adapt.k0;
         self.noise_heading = self.cfg.heading.noise();
         self.noise_heading.k = k0;

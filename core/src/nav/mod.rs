@@ -5,6 +5,8 @@
 //! - one file per aiding sensor: [`heading`] (polarization compass), [`depth`], [`velocity`]
 //!   (body frame), [`dvl`] (DVL velocity with mounting rotation and lever arm), [`position`]
 //!   (position fix with covariance from the host).
+//! - [`history`]: the fixed-size past of the nominal state, for fusing position and velocity
+//!   measurements at their own (past) time of validity.
 //! - [`health`]: the `FilterHealth` telemetry message.
 //!
 //! Use from a firmware app:
@@ -28,6 +30,7 @@ pub mod dvl;
 mod filter;
 pub mod heading;
 pub mod health;
+pub mod history;
 pub mod position;
 pub mod rotation;
 pub mod state;
@@ -39,5 +42,7 @@ pub use filter::{
 };
 pub use state::NominalState;
 
+#[cfg(test)]
+mod delay_tests;
 #[cfg(test)]
 mod tests;

@@ -19,11 +19,18 @@ pub fn h_position<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>) -> V
 }
 
 impl<const N: usize, const S: usize> NavFilter<N, S> {
-    /// Position fix (NED, m) with its covariance (upper triangle xx, xy, xz, yy, yz, zz; m^2).
+    /// Position fix (NED, m) with its covariance (upper triangle xx, xy, xz, yy, yz, zz; m^2),
+    /// valid at `t_us`: fused at that time if it is in the past (see [`super::history`]; older
+    /// than the history: `NavError::TooOld`, stamped beyond `NavConfig::max_future_us`:
+    /// `NavError::FromFuture`, both counted in `delay_rejects`, state untouched).
     pub fn update_position(&mut self, t_us: u64, pos_ned_m: [f32; 3], cov_ned_m2: [f32; 6]) -> Result<UpdateReport<f32>, NavError> {
         let mut vals = [0.0f32; 9];
         vals[..3].copy_from_slice(&pos_ned_m);
         vals[3..].copy_from_slice(&cov_ned_m2);
+        if !vals.iter().all(|v| v.is_finite()) {
+            return Err(self.reject_nonfinite());
+        }
+        let delayed = self.check_time(t_us)?;
         self.begin_update(&vals)?;
         let [xx, xy, xz, yy, yz, zz] = cov_ned_m2;
         let r = Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz);
@@ -33,9 +40,14 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if !(self.cfg.ukf.adapt.r_cov && self.noise_pos.adapt) {
             self.noise_pos.r = r;
         }
-        let nom = self.nom;
         let z = Vector3::from(pos_ned_m);
-        let res = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| h_position(&nom, dx));
-        self.end_update(KIND_POSITION, t_us, res)
+        let res = if delayed {
+            let ep = self.past_epoch(t_us)?;
+            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| h_position(&ep.nom, &ep.map(dx)))
+        } else {
+            let nom = self.nom;
+            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| h_position(&nom, dx))
+        };
+        self.end_update(KIND_POSITION, t_us, res, delayed)
     }
 }

@@ -19,22 +19,33 @@ pub fn h_body_velocity<const N: usize>(nom: &NominalState, dx: &SVector<f32, N>)
 }
 
 impl<const N: usize, const S: usize> NavFilter<N, S> {
-    /// Velocity in the body frame (FRD, m/s) with a per-axis 1-sigma (`None`: configured/adapted).
+    /// Velocity in the body frame (FRD, m/s) with a per-axis 1-sigma (`None`: configured/adapted),
+    /// valid at `t_us` (time rules of [`super::history`], as `update_position`).
     pub fn update_body_velocity(
         &mut self,
         t_us: u64,
         vel_frd_mps: [f32; 3],
         sigma_mps: Option<f32>,
     ) -> Result<UpdateReport<f32>, NavError> {
-        self.begin_update(&[vel_frd_mps[0], vel_frd_mps[1], vel_frd_mps[2], sigma_mps.unwrap_or(1.0)])?;
+        let vals = [vel_frd_mps[0], vel_frd_mps[1], vel_frd_mps[2], sigma_mps.unwrap_or(1.0)];
+        if !vals.iter().all(|v| v.is_finite()) {
+            return Err(self.reject_nonfinite());
+        }
+        let delayed = self.check_time(t_us)?;
+        self.begin_update(&vals)?;
         if let Some(s) = sigma_mps.filter(|s| *s > 0.0) {
             if !(self.cfg.ukf.adapt.r_cov && self.noise_vel.adapt) {
                 self.noise_vel.r = nalgebra::Matrix3::identity() * (s * s);
             }
         }
-        let nom = self.nom;
         let z = Vector3::from(vel_frd_mps);
-        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_body_velocity(&nom, dx));
-        self.end_update(KIND_VELOCITY, t_us, r)
+        let r = if delayed {
+            let ep = self.past_epoch(t_us)?;
+            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_body_velocity(&ep.nom, &ep.map(dx)))
+        } else {
+            let nom = self.nom;
+            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_body_velocity(&nom, dx))
+        };
+        self.end_update(KIND_VELOCITY, t_us, r, delayed)
     }
 }
