@@ -19,7 +19,7 @@
 use std::time::Duration;
 
 use subnav_sil::dive::{DiveOptions, DiveResult, run_dive};
-use subnav_sil::{FaultPlan, Scenario};
+use subnav_sil::{DvlPlan, FaultPlan, Scenario};
 
 fn elf() -> std::path::PathBuf {
     subnav_tests::qemu_elf()
@@ -50,10 +50,12 @@ fn five_minute_dive_with_sensors_in_the_loop_meets_the_stated_bounds() {
     assert!(r.depth_rmse_m <= 0.05, "depth RMSE {} m", r.depth_rmse_m);
 }
 
-/// Bus NACKs on the IMU (1 s) and 5 % of the depth reads, an occluded polarization unit (10 s)
-/// and, from 240 s on, a stuck gyro axis for the rest of the dive: the run completes, every
-/// fault is reported, nothing is NaN, and the filter (coasting on compass, depth and fixes
-/// while the IMU is out) still meets the clean dive's bounds.
+/// Bus NACKs on the IMU (1 s) and 5 % of the depth reads, an occluded polarization unit (10 s),
+/// from 240 s on a stuck gyro axis for the rest of the dive, and a DVL that goes silent for
+/// 20 s, flags 5 % of its pings invalid and sends 2 % of its sentences with a bad checksum and
+/// 2 % cut short: the run completes, every fault is reported, nothing is NaN, and the filter
+/// (coasting on compass, depth, DVL and fixes while the IMU is out) still meets the clean
+/// dive's bounds.
 #[test]
 fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
     let faults = FaultPlan {
@@ -62,7 +64,14 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
         occluded_unit: Some((120.0, 130.0, 1)),
         depth_nack_probability: 0.05,
     };
-    let sc = Scenario { seed: 7, faults, ..Scenario::default() };
+    let dvl = DvlPlan {
+        silent_s: Some((150.0, 170.0)),
+        invalid_probability: 0.05,
+        bad_checksum_probability: 0.02,
+        truncate_probability: 0.02,
+        ..DvlPlan::default()
+    };
+    let sc = Scenario { seed: 7, faults, dvl: Some(dvl), ..Scenario::default() };
     let r = dive(&sc);
     assert_eq!(r.exit_code, Some(0));
     assert_eq!(r.nonfinite_values, 0);
@@ -72,6 +81,7 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
     assert!(has("Imu", "Stuck"), "{:?}", r.faults);
     assert!(has("Depth", "BusNack"), "{:?}", r.faults);
     assert!(has("Polarization { unit: 1 }", "Occluded"), "{:?}", r.faults);
+    assert!(has("Dvl", "Invalid") && has("Dvl", "BadCrc") && has("Dvl", "Malformed"), "{:?}", r.faults);
     // The compass went on with the other three units.
     assert!(r.compass_fixes > 2500, "{r:?}");
     assert!(r.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.heading_rmse_deg);

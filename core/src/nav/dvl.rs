@@ -124,13 +124,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let gyro = Vector3::from(m.gyro_radps);
         let z = Vector3::from(m.vel_dvl_mps);
         let mount = *mount;
-        let r = if delayed {
-            let ep = self.past_epoch(m.t_us)?;
-            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_dvl(&ep.nom, &ep.map(dx), &mount, &gyro))
-        } else {
-            let nom = self.nom;
-            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_dvl(&nom, dx, &mount, &gyro))
-        };
+        // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
+        let past = if delayed { Some(self.past_epoch(m.t_us)?) } else { None };
+        let nom = self.nom;
+        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| match &past {
+            Some(ep) => h_dvl(&ep.nom, &ep.map(dx), &mount, &gyro),
+            None => h_dvl(&nom, dx, &mount, &gyro),
+        });
         self.end_update(KIND_VELOCITY, m.t_us, r, delayed)
     }
 }

@@ -41,13 +41,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             self.noise_pos.r = r;
         }
         let z = Vector3::from(pos_ned_m);
-        let res = if delayed {
-            let ep = self.past_epoch(t_us)?;
-            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| h_position(&ep.nom, &ep.map(dx)))
-        } else {
-            let nom = self.nom;
-            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| h_position(&nom, dx))
-        };
+        // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
+        let past = if delayed { Some(self.past_epoch(t_us)?) } else { None };
+        let nom = self.nom;
+        let res = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| match &past {
+            Some(ep) => h_position(&ep.nom, &ep.map(dx)),
+            None => h_position(&nom, dx),
+        });
         self.end_update(KIND_POSITION, t_us, res, delayed)
     }
 }

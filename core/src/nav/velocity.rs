@@ -39,13 +39,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             }
         }
         let z = Vector3::from(vel_frd_mps);
-        let r = if delayed {
-            let ep = self.past_epoch(t_us)?;
-            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_body_velocity(&ep.nom, &ep.map(dx)))
-        } else {
-            let nom = self.nom;
-            self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| h_body_velocity(&nom, dx))
-        };
+        // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
+        let past = if delayed { Some(self.past_epoch(t_us)?) } else { None };
+        let nom = self.nom;
+        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| match &past {
+            Some(ep) => h_body_velocity(&ep.nom, &ep.map(dx)),
+            None => h_body_velocity(&nom, dx),
+        });
         self.end_update(KIND_VELOCITY, t_us, r, delayed)
     }
 }

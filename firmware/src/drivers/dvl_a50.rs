@@ -231,9 +231,90 @@ fn field_str(f: &[u8]) -> Result<&str, SentenceError> {
     core::str::from_utf8(f).map_err(|_| SentenceError::Malformed)
 }
 
+/// Powers of ten exactly as f32 rounds them (`1e0 ..= 1e38`).
+const POW10_F32: [f32; 39] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
+    1e22, 1e23, 1e24, 1e25, 1e26, 1e27, 1e28, 1e29, 1e30, 1e31, 1e32, 1e33, 1e34, 1e35, 1e36, 1e37, 1e38,
+];
+
+/// A decimal number as the DVL writes it: `[+-]digits[.digits][(e|E)[+-]digits]` (at least one
+/// mantissa digit). Why not `str::parse::<f32>`: core's correctly rounded parser (Eisel-Lemire
+/// with its 10 KB power-of-five table and the big-decimal fallback) is 15 KB of flash on the
+/// M4F, an eighth of the firmware's budget. Here: the first 19 significant digits as an integer,
+/// rounded once to f32, times or divided by a power of ten: within 2 ulp of the correctly
+/// rounded value (tested against `str::parse`), far below the protocol's 1 mm/s resolution.
+/// Anything else (`nan`, `inf`, hex, empty, overflow) is malformed.
+pub fn parse_decimal_f32(f: &[u8]) -> Option<f32> {
+    let (neg, rest) = match f.split_first() {
+        Some((b'-', r)) => (true, r),
+        Some((b'+', r)) => (false, r),
+        _ => (false, f),
+    };
+    let mut mant: u64 = 0;
+    let mut digits = 0u32; // significant digits kept in `mant`
+    let mut exp10: i32 = 0;
+    let mut seen_digit = false;
+    let mut seen_point = false;
+    let mut i = 0usize;
+    while let Some(&c) = rest.get(i) {
+        match c {
+            b'0'..=b'9' => {
+                seen_digit = true;
+                if digits < 19 {
+                    mant = mant * 10 + u64::from(c - b'0');
+                    if mant != 0 {
+                        digits += 1;
+                    }
+                    if seen_point {
+                        exp10 -= 1;
+                    }
+                } else if !seen_point {
+                    exp10 += 1; // a digit beyond the 19 kept ones, before the point
+                }
+            }
+            b'.' if !seen_point => seen_point = true,
+            _ => break,
+        }
+        i += 1;
+    }
+    if !seen_digit {
+        return None;
+    }
+    if let Some(&c) = rest.get(i) {
+        if c != b'e' && c != b'E' {
+            return None;
+        }
+        let e = rest.get(i + 1..)?;
+        let (eneg, edig) = match e.split_first() {
+            Some((b'-', r)) => (true, r),
+            Some((b'+', r)) => (false, r),
+            _ => (false, e),
+        };
+        if edig.is_empty() || edig.len() > 4 || !edig.iter().all(u8::is_ascii_digit) {
+            return None;
+        }
+        let ev = edig.iter().fold(0i32, |a, d| a * 10 + i32::from(d - b'0'));
+        exp10 += if eneg { -ev } else { ev };
+    }
+    let m = mant as f32;
+    let v = if mant == 0 {
+        0.0
+    } else if exp10 >= 0 {
+        m * *POW10_F32.get(usize::try_from(exp10).ok()?)?
+    } else {
+        let k = usize::try_from(-exp10).ok()?;
+        match POW10_F32.get(k) {
+            Some(p) => m / p,
+            // Below 1e-38: two steps (subnormal or zero results are fine here).
+            None => (m / 1e38) / *POW10_F32.get(k.checked_sub(38)?)?,
+        }
+    };
+    let v = if neg { -v } else { v };
+    v.is_finite().then_some(v)
+}
+
 fn parse_f32(f: &[u8]) -> Result<f32, SentenceError> {
-    let v: f32 = field_str(f)?.parse().map_err(|_| SentenceError::Malformed)?;
-    if v.is_finite() { Ok(v) } else { Err(SentenceError::Malformed) }
+    parse_decimal_f32(f).ok_or(SentenceError::Malformed)
 }
 
 fn parse_u64(f: &[u8]) -> Result<u64, SentenceError> {
@@ -597,6 +678,40 @@ impl<U: Read + ReadReady + Write> DvlA50<U> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn decimal_parser_is_within_two_ulp_of_the_correctly_rounded_value() {
+        let mut cases: Vec<String> = [
+            "0", "-0", "0.000", "1", "-1.30", "0.120", "-0.400", "2.000", "1.855", "1e-07", "1e+09", "9.00e-6", "1.4", "123.00",
+            "2.707", "+3.5", "0.0000001234", "12345678901234567890123", "1.17549435e-38", "3.4e38", "7.", ".5",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        // Every value the DVL's 3-decimal format can give between -20 and 20 m/s, and a sweep of
+        // mantissas and exponents.
+        for k in (-20_000..=20_000).step_by(7) {
+            cases.push(format!("{:.3}", k as f64 / 1000.0));
+        }
+        for e in -40..=38 {
+            for m in [1.0f64, 1.5, 2.718281828, 9.99] {
+                cases.push(format!("{m}e{e}"));
+            }
+        }
+        for c in &cases {
+            let exact: f32 = c.parse().unwrap();
+            if exact.is_infinite() {
+                assert_eq!(parse_decimal_f32(c.as_bytes()), None, "{c} overflows f32: malformed");
+                continue;
+            }
+            let ours = parse_decimal_f32(c.as_bytes()).unwrap_or_else(|| panic!("{c} refused"));
+            let ulp = (exact.abs().max(f32::MIN_POSITIVE)).to_bits().abs_diff(ours.abs().max(f32::MIN_POSITIVE).to_bits());
+            assert!(ulp <= 2 && ours.is_sign_negative() == exact.is_sign_negative() || exact == 0.0, "{c}: {ours} vs {exact} ({ulp} ulp)");
+        }
+        for bad in ["", "-", ".", "nan", "inf", "-inf", "1e", "1e+", "1.2.3", "0x10", "1,5", "1e99", "1 ", "e5", "1e12345"] {
+            assert_eq!(parse_decimal_f32(bad.as_bytes()), None, "{bad:?} accepted");
+        }
+    }
     use std::collections::VecDeque;
     use std::vec::Vec;
 

@@ -8,6 +8,8 @@
 use core::hint::black_box;
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+use subnav_core::head;
+use subnav_core::nav::dvl::DvlMeasurement;
 use subnav_core::nav::strapdown::{Increments, propagate_error};
 use subnav_core::nav::{NavConfig, NavFilter15, NavInit};
 use subnav_core::ukf::pd::cholesky_into;
@@ -87,4 +89,68 @@ pub fn run(b: &mut Bench) {
         b.run("nav.health", 1000, || black_box(nav.health()).pd_repairs);
         b.run("nav.solution", 1000, || black_box(nav.solution()).t_us);
     }
+    // Late measurements (the history lookup and the retrodicted sigma points): a position fix
+    // 3 s old and a DVL report 0.1 s old, each consistent with the stored past.
+    if let Some(mut nav) = head_filter() {
+        let t = nav.t_us();
+        // The first stored instant at least 3 s back, and the position the filter had then.
+        let past = (0..64).filter_map(|i| nav.history().get(i)).filter(|s| s.t_us + 3_000_000 <= t).last().copied();
+        let (t_fix, p) = past.map(|s| (s.t_us, [s.pos_ned_m.x, s.pos_ned_m.y, s.pos_ned_m.z])).unwrap_or((t, [0.0; 3]));
+        b.run("nav.update_position_3s_late", 200, || {
+            nav.update_position(t_fix, black_box(p), [4.0, 0.0, 0.0, 4.0, 0.0, 4.0]).map(|r| r.accepted).unwrap_or(false)
+        });
+        let m = dvl_now(&nav, t - 100_000);
+        b.run("nav.update_dvl_100ms_late", 200, || nav.update_dvl(black_box(&m), &head::dvl_mounting()).map(|r| r.accepted).unwrap_or(false));
+        let m = dvl_now(&nav, t);
+        b.run("nav.update_dvl_current", 200, || nav.update_dvl(black_box(&m), &head::dvl_mounting()).map(|r| r.accepted).unwrap_or(false));
+    }
+    // Five simulated seconds at the sensor head's rates and configuration (`head::nav_config`):
+    // IMU 200 Hz (UKF predict every 10th sample), compass heading 10 Hz, depth 10 Hz, DVL 5 Hz
+    // fused 0.1 s late, one position fix fused 3 s late. Divide by 5 for a second.
+    if let Some(mut nav) = head_filter() {
+        let mut t = nav.t_us();
+        b.run("nav.five_seconds_at_head_rates", 3, || {
+            let mut accepted = 0u32;
+            for k in 0..1000u32 {
+                t += 5_000;
+                let _ = nav.propagate(&imu(t));
+                if k % 20 == 0 {
+                    let yaw = nav.nominal().yaw_rad();
+                    let z = nav.nominal().pos_ned_m.z;
+                    accepted += u32::from(nav.update_heading(t, yaw, None).is_ok_and(|r| r.accepted));
+                    accepted += u32::from(nav.update_depth(t, z, None).is_ok_and(|r| r.accepted));
+                }
+                if k % 40 == 7 {
+                    let m = dvl_now(&nav, t.saturating_sub(100_000));
+                    accepted += u32::from(nav.update_dvl(&m, &head::dvl_mounting()).is_ok_and(|r| r.accepted));
+                }
+                if k == 500 {
+                    let p = nav.nominal().pos_ned_m;
+                    let fix = nav.update_position(t.saturating_sub(3_000_000), [p.x, p.y, p.z], [4.0, 0.0, 0.0, 4.0, 0.0, 4.0]);
+                    accepted += u32::from(fix.is_ok_and(|r| r.accepted));
+                }
+            }
+            accepted
+        });
+    }
+}
+
+/// The head's filter after 5 s of IMU samples at 200 Hz (the history is full enough for a fix
+/// 3 s late).
+fn head_filter() -> Option<NavFilter15> {
+    let mut nav = filter(head::nav_config())?;
+    let mut t = nav.t_us();
+    for _ in 0..1000 {
+        t += 5_000;
+        let _ = nav.propagate(&imu(t));
+    }
+    Some(nav)
+}
+
+/// A DVL measurement consistent with the filter's current state, stamped `t_us`.
+fn dvl_now(nav: &NavFilter15, t_us: u64) -> DvlMeasurement {
+    let mount = head::dvl_mounting();
+    let v_b = nav.nominal().att_nb.inverse_transform_vector(&nav.nominal().vel_ned_mps);
+    let v_d = mount.rot_body_from_dvl.inverse_transform_vector(&v_b);
+    DvlMeasurement { t_us, vel_dvl_mps: [v_d.x, v_d.y, v_d.z], covariance_m2ps2: None, fom_mps: Some(0.01), gyro_radps: [0.0; 3] }
 }
