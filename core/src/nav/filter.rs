@@ -303,15 +303,20 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     pub fn new(cfg: NavConfig, init: NavInit) -> Result<Self, NavError> {
         let (nom, p0) = Self::initial(&cfg, &init)?;
         let ukf = Ukf::new(cfg.ukf, SVector::zeros(), SMatrix::from_diagonal(&p0), Self::nominal_q(&cfg))?;
+        // Built in one literal (no by-value builder steps: each moved the whole filter, 8 KB,
+        // through the M4F's stack at boot).
+        let k0 = cfg.ukf.adapt.k0;
+        let mut hist = History::new();
+        hist.restart(init.t_us, &nom);
         Ok(Self {
             cfg,
             ukf,
             nom,
             inc: Increments::zero(),
-            noise_heading: cfg.heading.noise(),
-            noise_depth: cfg.depth.noise(),
-            noise_vel: cfg.velocity.noise(),
-            noise_pos: cfg.position.noise(),
+            noise_heading: cfg.heading.noise().with_k(k0),
+            noise_depth: cfg.depth.noise().with_k(k0),
+            noise_vel: cfg.velocity.noise().with_k(k0),
+            noise_pos: cfg.position.noise().with_k(k0),
             t_us: init.t_us,
             last_imu_t_us: None,
             last_aided_t_us: None,
@@ -319,12 +324,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             imu_rejects: 0,
             time_rejects: 0,
             lambda: 1.0,
-            hist: History::new(),
+            hist,
             delayed_updates: 0,
             delay_rejects: 0,
-        }
-        .with_k0(cfg.ukf.adapt.k0)
-        .with_history())
+        })
     }
 
     /// Re-initialise in place, exactly as [`NavFilter::new`] would build the filter (on failure
@@ -385,19 +388,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             group_diag(&mut p0, MARKOV, cfg.markov_sigma * cfg.markov_sigma);
         }
         Ok((nom, p0))
-    }
-
-    fn with_history(mut self) -> Self {
-        self.hist.restart(self.t_us, &self.nom);
-        self
-    }
-
-    fn with_k0(mut self, k0: u32) -> Self {
-        self.noise_heading.k = k0;
-        self.noise_depth.k = k0;
-        self.noise_vel.k = k0;
-        self.noise_pos.k = k0;
-        self
     }
 
     /// Process noise over one nominal covariance interval.

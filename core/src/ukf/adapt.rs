@@ -167,6 +167,12 @@ impl<T: RealField + Copy, const M: usize> MeasNoise<T, M> {
         self
     }
 
+    /// With the Sage-Husa step counter started at `k` (the forgetting factor's warm-up).
+    pub fn with_k(mut self, k: u32) -> Self {
+        self.k = k;
+        self
+    }
+
     /// With an eigenvalue floor for the adapted R.
     pub fn with_floor(mut self, r_floor: T) -> Self {
         self.r_floor = r_floor;

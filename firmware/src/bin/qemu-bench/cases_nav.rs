@@ -100,7 +100,9 @@ pub fn run(b: &mut Bench) {
             nav.update_position(t_fix, black_box(p), [4.0, 0.0, 0.0, 4.0, 0.0, 4.0]).map(|r| r.accepted).unwrap_or(false)
         });
         let m = dvl_now(&nav, t - 100_000);
-        b.run("nav.update_dvl_100ms_late", 200, || nav.update_dvl(black_box(&m), &head::dvl_mounting()).map(|r| r.accepted).unwrap_or(false));
+        b.run("nav.update_dvl_100ms_late", 200, || {
+            nav.update_dvl(black_box(&m), &head::dvl_mounting()).map(|r| r.accepted).unwrap_or(false)
+        });
         let m = dvl_now(&nav, t);
         b.run("nav.update_dvl_current", 200, || nav.update_dvl(black_box(&m), &head::dvl_mounting()).map(|r| r.accepted).unwrap_or(false));
     }

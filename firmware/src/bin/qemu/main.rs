@@ -125,6 +125,7 @@ fn parse_u64(s: &[u8]) -> Option<u64> {
     s.iter().try_fold(0u64, |acc, &c| if c.is_ascii_digit() { acc.checked_mul(10)?.checked_add(u64::from(c - b'0')) } else { None })
 }
 
+#[inline(never)] // its 640-byte command-line buffer stays out of the board loop's frame
 fn run_options() -> RunOptions {
     let mut opts =
         RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None, utc_unix_us: None, lat_e7: None, lon_e7: None };
