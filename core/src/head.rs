@@ -114,6 +114,10 @@ pub fn dvl_sigma_mps(fom_mps: f32, vel_mps: [f32; 3]) -> f32 {
 pub fn nav_config() -> NavConfig {
     let mut cfg = NavConfig::default();
     cfg.imu_rate_hz = IMU_RATE_HZ as f32;
+    // UKF predict at 10 Hz: the compass and depth updates (10 Hz) flush a partial interval
+    // anyway; 20 Hz cost 1.7 M instructions a second more on the M4F for the same accuracy
+    // (docs/PERFORMANCE.md, "Cost on the target").
+    cfg.cov_decimation = 20;
     cfg.gyro_arw = IMU_ICM42688P.gyro_arw;
     cfg.gyro_bias_rw = IMU_ICM42688P.gyro_bias_rw;
     cfg.accel_vrw = IMU_ICM42688P.accel_vrw;
