@@ -714,7 +714,7 @@ mod tests {
             cases.push(format!("{:.3}", k as f64 / 1000.0));
         }
         for e in -40..=38 {
-            for m in [1.0f64, 1.5, 2.718281828, 9.99] {
+            for m in [1.0f64, 1.5, 2.123456789, 9.99] {
                 cases.push(format!("{m}e{e}"));
             }
         }

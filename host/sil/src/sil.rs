@@ -137,8 +137,6 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
         app.sensor_tick(t_us, &mut suite, &mut sink);
         let _ = app.poll(t_us, &mut sink);
     }
-    drop(modem);
-    drop(suite);
     let transactions = bridge.into_inner().link_mut().transactions;
     downlink.extend(delivered.lock().unwrap_or_else(|e| e.into_inner()).drain(..));
     NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions }
