@@ -98,6 +98,11 @@ pub struct NavConfig {
     pub position: SensorConfig,
     /// Mode falls back to `Inertial` when no aiding update was accepted for this long.
     pub aided_timeout_s: f32,
+    /// Horizontal position random walk added while coasting without the IMU, m/sqrt(s): the
+    /// constant-velocity coast cannot follow a turn between two velocity updates (at 1 m/s on
+    /// a 10 m radius, 3 mm per 0.25 s, always toward the outside), a bias a DVL-held velocity
+    /// sigma does not cover.
+    pub coast_position_rw: f32,
     /// A position or velocity measurement stamped more than this after the filter time is
     /// refused (`NavError::FromFuture`); up to it, it is fused as current. µs.
     pub max_future_us: u64,
@@ -167,6 +172,7 @@ impl Default for NavConfig {
             },
             aided_timeout_s: 5.0,
             max_future_us: 200_000,
+            coast_position_rw: 0.15,
         }
     }
 }
@@ -201,6 +207,8 @@ impl NavConfig {
             && pos(self.gravity_mps2)
             && pos(self.max_imu_dt_s)
             && pos(self.markov_tau_s)
+            && self.coast_position_rw.is_finite()
+            && self.coast_position_rw >= 0.0
             && [self.heading, self.depth, self.velocity, self.position]
                 .iter()
                 .all(|s| pos(s.sigma) && s.sigma_floor >= 0.0 && s.gate > 0.0 && s.gate_state_max > 0.0)
@@ -478,7 +486,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
 
     /// Degraded mode without the IMU (failed or stuck): advance to `t_us` at constant velocity;
     /// the error covariance grows by the nominal process noise plus random walks of
-    /// `attitude_rw` (rad/sqrt(s)) and `velocity_rw` (m/s/sqrt(s)) per axis, so the aiding
+    /// `attitude_rw` (rad/sqrt(s)) and `velocity_rw` (m/s/sqrt(s)) per axis and
+    /// `NavConfig::coast_position_rw` on the horizontal position, so the aiding
     /// sensors (compass, depth, fixes) carry the state instead of being gated out against a
     /// frozen, over-confident one. The next IMU sample continues from `t_us`.
     pub fn coast(&mut self, t_us: u64, attitude_rw: f32, velocity_rw: f32) -> Result<(), NavError> {
@@ -506,6 +515,12 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             }
             if let Some(v) = p.get_mut((VEL + k, VEL + k)) {
                 *v += velocity_rw * velocity_rw * dt;
+            }
+        }
+        let prw = self.cfg.coast_position_rw.max(0.0);
+        for k in 0..2 {
+            if let Some(v) = p.get_mut((POS + k, POS + k)) {
+                *v += prw * prw * dt;
             }
         }
         self.ukf.set_p(p)?;
