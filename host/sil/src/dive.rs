@@ -102,10 +102,13 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
         }
     });
     cfg.raw_tap = None;
+    // The runner hands the chip models back; their modem holds a clone of the recording's tap,
+    // which must be gone before the recording can finish.
+    let result = result.map(|(outcome, _head)| outcome);
     if let Some(r) = recorder {
         r.finish()?;
     }
-    let (outcome, _) = result?;
+    let outcome = result?;
     if outcome.timed_out {
         anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
     }
