@@ -422,8 +422,6 @@ impl Estimator {
             Some(nav) => {
                 let mut h = nav.health();
                 h.nonfinite_rejects = h.nonfinite_rejects.saturating_add(self.input_rejects);
-                h.late_fused = nav.delayed_updates();
-                h.late_refused = nav.delay_rejects();
                 h
             }
             None => FilterHealth {

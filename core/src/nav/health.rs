@@ -13,8 +13,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     ///   definiteness and were replaced by the biased form (the message has one counter; see
     ///   [`crate::ukf::UkfHealth`] for them apart).
     /// - `nonfinite_rejects`: inputs rejected before the UKF plus those the UKF rejected.
-    /// - `cpu_load_permille` is left 0: the firmware fills it; so are `late_fused` /
-    ///   `late_refused` (from the filter's delayed-fusion counters).
+    /// - `late_fused` / `late_refused`: the delayed-fusion counters (`delayed_updates`,
+    ///   `delay_rejects`).
+    /// - `cpu_load_permille` is left 0: the firmware fills it.
     pub fn health(&self) -> FilterHealth {
         let h = self.ukf.health();
         let q = self.ukf.q();
@@ -29,8 +30,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             pd_repairs: h.pd_repairs.saturating_add(h.adapt_fallbacks),
             gate_rejects: h.gate_rejects,
             nonfinite_rejects: h.nonfinite_rejects.saturating_add(self.imu_rejects),
-            late_fused: 0,
-            late_refused: 0,
+            late_fused: self.delayed_updates(),
+            late_refused: self.delay_rejects(),
             cpu_load_permille: 0,
         }
     }
