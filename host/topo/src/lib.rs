@@ -9,6 +9,7 @@
 //! survey has no firmware in the loop).
 
 pub mod export;
+pub mod live;
 pub mod lmnn;
 pub mod map;
 pub mod polar_image;
