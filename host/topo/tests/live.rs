@@ -226,6 +226,12 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
             let frame = CameraFrame { frame: frame_no, t_us, features: Some(f), truth_ned_m: Some(truth) };
             frame_no += 1;
             if let FrameOutcome::Fix(fix) = mapper.on_frame(&frame) {
+                // The downlink command carries the fix and the firmware's own depth (uninformative).
+                let cmd = fix.to_command(fix.prior_depth_m, 1e4);
+                let subnav_wire::Command::PositionFix { t_us: ct, pos_ned_m, cov_ned_m2 } = cmd else { panic!("{cmd:?}") };
+                assert_eq!(ct, t_us);
+                assert_eq!(pos_ned_m, [fix.pos_ne_m[0] as f32, fix.pos_ne_m[1] as f32, 10.0]);
+                assert_eq!(cov_ned_m2, [fix.cov_ne_m2[0] as f32, fix.cov_ne_m2[1] as f32, 0.0, fix.cov_ne_m2[2] as f32, 0.0, 1e4]);
                 fw.fuse(truth, &fix);
                 fixes += 1;
             }

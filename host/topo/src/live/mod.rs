@@ -22,8 +22,9 @@
 //!   older than `min_revisit_s`, `D = P1 - P0` projected onto PSD with eigenvalues floored at
 //!   `min_drift_m2`, `m = x1 - x0`, gate statistic `m^T (D + V)^-1 m < gate_chi2` with
 //!   `V = recognition_sigma_m^2 I`. Then appearance: the nearest gated node in the learned metric
-//!   below the threshold is recognised. The nearest node overall below the threshold is counted
-//!   as an appearance-only match, and as a gate refusal when its node failed the gate.
+//!   below the threshold is recognised. The nearest node overall (of those old enough) below the
+//!   threshold is counted as an appearance-only match, and as a gate refusal when its node failed
+//!   the gate.
 //! - **The fix** does not count the firmware's information twice: the node's error `e0` (cov
 //!   `P0`) is still part of the firmware's error at t1, `e1 = e0 + d`, drift `d ~ N(0, D)`. The
 //!   recognition `x(t1) = x(t0) + v`, `v ~ N(0, V)` makes `m` an observation of `d` with noise
@@ -177,6 +178,8 @@ pub struct MapFix {
     pub frame: u32,
     pub prior_ne_m: [f64; 2],
     pub prior_cov_ne_m2: [f64; 3],
+    /// The firmware's depth at `t_us` (for [`MapFix::to_command`]).
+    pub prior_depth_m: f64,
     pub posterior_ne_m: [f64; 2],
     pub posterior_cov_ne_m2: [f64; 3],
     pub gate_d2: f64,
@@ -185,8 +188,8 @@ pub struct MapFix {
 
 impl MapFix {
     /// The downlink command: horizontal fix, with the depth `depth_m` and its variance (give the
-    /// firmware's own depth at `t_us` with a large variance, e.g. 1e4 m^2, so the fix does not
-    /// inform depth).
+    /// firmware's own depth at `t_us`, [`MapFix::prior_depth_m`], with a large variance, e.g.
+    /// 1e4 m^2, so the fix does not inform depth).
     pub fn to_command(&self, depth_m: f64, depth_var_m2: f64) -> Command {
         let c = self.cov_ne_m2;
         Command::PositionFix {
@@ -361,6 +364,7 @@ pub struct LiveStats {
 struct NavPoint {
     t_us: u64,
     pos: [f64; 2],
+    depth_m: f64,
     cov: [f64; 3],
     aided: bool,
     /// Path length of the nav solution since the first sample (m).
@@ -371,6 +375,7 @@ struct NavPoint {
 #[derive(Debug, Clone, Copy)]
 struct NavAt {
     pos: [f64; 2],
+    depth_m: f64,
     cov: [f64; 3],
     aided: bool,
     odo_m: f64,
@@ -513,7 +518,7 @@ impl LiveMapper {
         }
         let odo_m = self.odo_m;
         self.stats.nav_samples += 1;
-        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, cov: nav.cov_ne_m2, aided: nav.aided, odo_m });
+        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov: nav.cov_ne_m2, aided: nav.aided, odo_m });
         let window_us = (self.cfg.nav_window_s.max(0.0) * 1e6) as u64;
         while self.nav.len() > self.cfg.max_nav_samples.max(2)
             || self.nav.front().is_some_and(|f| f.t_us.saturating_add(window_us) < nav.t_us)
@@ -531,7 +536,7 @@ impl LiveMapper {
         let b = self.nav.partition_point(|p| p.t_us < t_us);
         let Some(pb) = self.nav.get(b) else { return NavLookup::NeedNav };
         if pb.t_us == t_us {
-            return NavLookup::At(NavAt { pos: pb.pos, cov: pb.cov, aided: pb.aided, odo_m: pb.odo_m });
+            return NavLookup::At(NavAt { pos: pb.pos, depth_m: pb.depth_m, cov: pb.cov, aided: pb.aided, odo_m: pb.odo_m });
         }
         let Some(pa) = b.checked_sub(1).and_then(|a| self.nav.get(a)) else { return NavLookup::Expired };
         let gap_s = (pb.t_us - pa.t_us) as f64 * 1e-6;
@@ -542,6 +547,7 @@ impl LiveMapper {
         let lerp = |a: f64, b: f64| a + w * (b - a);
         NavLookup::At(NavAt {
             pos: [lerp(pa.pos[0], pb.pos[0]), lerp(pa.pos[1], pb.pos[1])],
+            depth_m: lerp(pa.depth_m, pb.depth_m),
             // The later sample's covariance (conservative while drifting).
             cov: pb.cov,
             aided: pa.aided && pb.aided,
@@ -814,7 +820,7 @@ impl LiveMapper {
                 refused = Some((best_all.1, g));
             }
         }
-        if !(best_gated.0 < thr2) {
+        if best_gated.0.is_nan() || best_gated.0 >= thr2 {
             self.update_scores();
             return refused.map_or(Recognition::None, |(n, d2)| Recognition::GateRefused(n, d2));
         }
@@ -850,7 +856,7 @@ impl LiveMapper {
             0.5 * tr + disc
         });
         let max_gain = gain.unwrap_or(0.0);
-        if r_eig[0] > cfg.max_fix_var_m2 || !(max_gain >= cfg.min_info_gain) {
+        if r_eig[0] > cfg.max_fix_var_m2 || max_gain.is_nan() || max_gain < cfg.min_info_gain {
             self.stats.fixes_refused_no_information += 1;
             return Recognition::Event(FrameOutcome::Refused { reason: Refusal::NoInformation { node, min_var_m2: r_eig[0], max_gain } });
         }
@@ -875,6 +881,7 @@ impl LiveMapper {
             frame: frame.frame,
             prior_ne_m: nav.pos,
             prior_cov_ne_m2: nav.cov,
+            prior_depth_m: nav.depth_m,
             posterior_ne_m: [math.mu[0], math.mu[1]],
             posterior_cov_ne_m2: tri(&math.sigma),
             gate_d2,
