@@ -419,6 +419,26 @@ fn bad_input_is_counted_and_survived() {
     m.on_nav(un);
     assert_eq!(m.on_frame(&frame(n + 1, gap_end + 50_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::NotAided });
     assert_eq!(m.stats().frames_unaided, 1);
+    // Camera restart: the counter starts again from 0 while time goes on. The first frames are out
+    // of order; once `restart_frames` (3) agree, the new counter is accepted.
+    let mut t = gap_end + 100_000;
+    for _ in 0..6 {
+        t += 100_000;
+        let mut a = nav_at(t, 0.01);
+        a.aided = false;
+        m.on_nav(a);
+    }
+    let before = m.stats();
+    let outs: Vec<FrameOutcome> = (0..4u32).map(|k| m.on_frame(&frame(k, gap_end + 150_000 + k as u64 * 100_000, &mut rng))).collect();
+    let s = m.stats();
+    assert_eq!(s.frames_out_of_order - before.frames_out_of_order, 2, "{outs:?}");
+    assert_eq!(s.camera_restarts, 1);
+    assert_eq!(outs[3], FrameOutcome::Ignored { reason: IgnoreReason::NotAided }, "accepted after the restart: {outs:?}");
+    assert_eq!(s.frames_missing, before.frames_missing, "a restart is not a gap");
+    // A lone low counter (corrupted) is ignored and does not reset anything.
+    assert_eq!(m.on_frame(&frame(1, gap_end + 600_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::OutOfOrder });
+    assert_eq!(m.on_frame(&frame(4, gap_end + 650_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::NotAided });
+    assert_eq!(m.stats().camera_restarts, 1);
 }
 
 #[test]
@@ -454,6 +474,7 @@ fn fixes_need_drift_since_the_node_and_nan_never_comes_out() {
             assert!(fixes.len() > 5, "{s:?}");
             // Isotropic covariances: the equivalent measurement is never more precise than the
             // recognition itself (R >= V).
+            assert!(fixes.windows(2).all(|w| w[1].t_us - w[0].t_us >= 2_000_000), "fixes closer than min_fix_interval_s");
             for f in &fixes {
                 assert!(sym(f.cov_ne_m2).symmetric_eigenvalues().min() >= 0.99 * cfg.recognition_sigma_m.powi(2), "{f:?}");
             }

@@ -36,9 +36,10 @@
 //!   variance by less than `min_info_gain` in every direction. A direction of `R` above
 //!   `max_fix_eig_m2` is capped there (with `z` moved so that the information vector is kept), so
 //!   the firmware's f32 Cholesky sees a bounded condition number. At most one fix per node per
-//!   `refractory_s`.
+//!   `refractory_s`, and one of any node per `min_fix_interval_s`.
 //! - **Bad input** is counted and survived: frames out of order (counter or time going back) and
-//!   duplicated counters are ignored, gaps in the counter counted, frames without features
+//!   duplicated counters are ignored (a counter that goes back for `restart_frames` frames in a row
+//!   with time going forward is a camera restart), gaps in the counter counted, frames without features
 //!   (blackout) counted (node placement by travel resumes when images return), non-finite nav or
 //!   features refused; nodes capped at `max_nodes` (`map_full_events`), nav window bounded in time
 //!   and count, closures kept up to `max_closures` (oldest dropped), no large stacks.
@@ -48,8 +49,9 @@
 //! from an older node) fused between a node's placement and its recognition decorrelates the
 //! errors, and `P1 - P0` then underestimates (or is not) the drift covariance (the floor keeps it
 //! PD). The fix uses the firmware's prior at t1 as telemetered: a fix still in flight when the
-//! next one is computed is not in that prior (the refractory period bounds repeats of a node, not
-//! of different nodes).
+//! next one is computed is not in that prior (`min_fix_interval_s` must exceed that round trip).
+//! Nav time going back (a sensor-head reboot) is ignored sample by sample: the map lives in the old
+//! solution's frame and time base, so start a new mapper then.
 
 pub mod fix;
 
@@ -102,6 +104,13 @@ pub struct LiveConfig {
     pub gate_chi2: f64,
     /// At most one fix per node per this (s).
     pub refractory_s: f64,
+    /// At most one fix (of any node) per this (s): longer than the round trip of a fix to the
+    /// firmware and back into its telemetered covariance, so a fix still in flight is not
+    /// counted again by the next one.
+    pub min_fix_interval_s: f64,
+    /// A frame counter that went back is a camera restart once this many frames in a row (times
+    /// and counters increasing among them) agree; the first ones are ignored as out of order.
+    pub restart_frames: usize,
     /// Hard bound on the number of nodes.
     pub max_nodes: usize,
     /// Scoring (truth given): a recognition is correct within this of the node's truth (m); an
@@ -145,6 +154,8 @@ impl Default for LiveConfig {
             recognition_sigma_m: 1.0,
             gate_chi2: subnav_base::chi2::chi2_2_99(),
             refractory_s: 8.0,
+            min_fix_interval_s: 2.0,
+            restart_frames: 3,
             max_nodes: 8192,
             correct_radius_m: 3.0,
             opportunity_radius_m: 2.0,
@@ -236,6 +247,10 @@ pub enum Refusal {
     Refractory {
         node: usize,
     },
+    /// Recognised, but a fix (of any node) was sent less than `min_fix_interval_s` ago.
+    FixInterval {
+        node: usize,
+    },
     /// Recognised, but the fix carries no useful information (R too large, or gain negligible).
     NoInformation {
         node: usize,
@@ -325,6 +340,8 @@ pub struct LiveStats {
     pub frames_duplicated: u64,
     /// Gaps in the frame counter (frames never seen).
     pub frames_missing: u64,
+    /// The frame counter restarted (see `LiveConfig::restart_frames`).
+    pub camera_restarts: u64,
     pub frames_without_features: u64,
     pub frames_nonfinite_features: u64,
     pub frames_nav_expired: u64,
@@ -350,6 +367,7 @@ pub struct LiveStats {
     pub recognitions: u64,
     pub fixes: u64,
     pub fixes_refused_refractory: u64,
+    pub fixes_refused_interval: u64,
     pub fixes_refused_no_information: u64,
     pub fixes_refused_numeric: u64,
     /// Scoring (truth given): correct recognitions, precision, opportunities, recalled ones, recall.
@@ -433,6 +451,10 @@ pub struct LiveMapper {
     cfg: LiveConfig,
     nav: VecDeque<NavPoint>,
     last_frame: Option<(u32, u64)>,
+    /// Frames in a row with the counter below the last accepted one and time forward: (counter,
+    /// time, how many).
+    restart_run: Option<(u32, u64, usize)>,
+    last_fix_t_us: Option<u64>,
     recent: VecDeque<(u64, [f64; N_FEATURES])>,
     /// Node being built: (id, creation time).
     collecting: Option<(usize, u64)>,
@@ -475,6 +497,8 @@ impl LiveMapper {
             cfg,
             nav: VecDeque::new(),
             last_frame: None,
+            restart_run: None,
+            last_fix_t_us: None,
             recent: VecDeque::new(),
             collecting: None,
             last_event_odo_m: None,
@@ -558,16 +582,32 @@ impl LiveMapper {
     /// Process a frame (see [`FrameOutcome`]). Frames must come in counter order; on
     /// [`FrameOutcome::NeedNav`] hold the frame (and the later ones) and call again after more nav.
     pub fn on_frame(&mut self, frame: &CameraFrame) -> FrameOutcome {
+        let mut restart = false;
         if let Some((last_n, last_t)) = self.last_frame {
             if frame.frame == last_n {
                 self.stats.frames += 1;
                 self.stats.frames_duplicated += 1;
                 return FrameOutcome::Ignored { reason: IgnoreReason::Duplicate };
             }
-            if frame.frame < last_n || frame.t_us <= last_t {
+            if frame.t_us <= last_t {
                 self.stats.frames += 1;
                 self.stats.frames_out_of_order += 1;
                 return FrameOutcome::Ignored { reason: IgnoreReason::OutOfOrder };
+            }
+            if frame.frame < last_n {
+                // Counter back, time forward: out of order, unless `restart_frames` such frames in a
+                // row agree with each other (a camera restart).
+                let run = match self.restart_run {
+                    Some((n, t, k)) if frame.frame > n && frame.t_us > t => k + 1,
+                    _ => 1,
+                };
+                if run < self.cfg.restart_frames.max(1) {
+                    self.restart_run = Some((frame.frame, frame.t_us, run));
+                    self.stats.frames += 1;
+                    self.stats.frames_out_of_order += 1;
+                    return FrameOutcome::Ignored { reason: IgnoreReason::OutOfOrder };
+                }
+                restart = true;
             }
         }
         let nav = self.nav_at(frame.t_us);
@@ -575,9 +615,12 @@ impl LiveMapper {
             return FrameOutcome::NeedNav;
         }
         self.stats.frames += 1;
-        if let Some((last_n, _)) = self.last_frame {
-            self.stats.frames_missing += u64::from(frame.frame - last_n - 1);
+        match self.last_frame {
+            Some(_) if restart => self.stats.camera_restarts += 1,
+            Some((last_n, _)) => self.stats.frames_missing += u64::from(frame.frame - last_n - 1),
+            None => {}
         }
+        self.restart_run = None;
         self.last_frame = Some((frame.frame, frame.t_us));
         let t = frame.t_us;
         let max_age_us = (self.cfg.max_sample_age_s.max(0.0) * 1e6) as u64;
@@ -838,6 +881,11 @@ impl LiveMapper {
             self.stats.fixes_refused_refractory += 1;
             return Recognition::Event(FrameOutcome::Refused { reason: Refusal::Refractory { node } });
         }
+        let interval_us = (cfg.min_fix_interval_s.max(0.0) * 1e6) as u64;
+        if self.last_fix_t_us.is_some_and(|lt| t < lt.saturating_add(interval_us)) {
+            self.stats.fixes_refused_interval += 1;
+            return Recognition::Event(FrameOutcome::Refused { reason: Refusal::FixInterval { node } });
+        }
         let x0 = Vector2::new(n.pos_ned_m[0], n.pos_ned_m[1]);
         let math = match equivalent_fix(x0, &sym(n.cov_ne_m2), x1, &p1, &v, cfg.min_drift_m2) {
             Ok(m) => m,
@@ -872,6 +920,7 @@ impl LiveMapper {
         }
         n.fixes += 1;
         n.last_fix_t_us = Some(t);
+        self.last_fix_t_us = Some(t);
         self.stats.fixes += 1;
         let fix = MapFix {
             t_us: t,
