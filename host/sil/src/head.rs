@@ -8,7 +8,8 @@
 //! 0x48..0x4B (polarization unit u on 0x48 + u) and MS5837-30BA at 0x76; UART 0 = DVL-A50
 //! (bottom track over a flat seafloor, water track without lock, the scenario's faults, scale
 //! and misalignment drawn per seed); UART 1 = the modem that delivers the host's position
-//! fixes at their arrival time (validity time + the scenario's latency).
+//! fixes at their arrival time (validity time + the scenario's latency) and the map's fixes;
+//! GPIO 0 = the camera's trigger line (scenarios with a camera: `crate::map_loop`).
 
 use std::sync::Arc;
 
