@@ -439,6 +439,17 @@ fn bad_input_is_counted_and_survived() {
     assert_eq!(m.on_frame(&frame(1, gap_end + 600_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::OutOfOrder });
     assert_eq!(m.on_frame(&frame(4, gap_end + 650_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::NotAided });
     assert_eq!(m.stats().camera_restarts, 1);
+    // One nav sample stamped an hour in the future: the following good ones are out of order until
+    // `nav_reset_samples` (10) agree, then the window starts again from them.
+    let future = nav_at(t + 3_600_000_000, 0.01);
+    assert_eq!(m.on_nav(future), NavOutcome::Accepted);
+    let outs: Vec<NavOutcome> = (1..=10u64).map(|k| m.on_nav(nav_at(t + k * 100_000, 0.01))).collect();
+    assert!(outs[..9].iter().all(|o| *o == NavOutcome::OutOfOrder), "{outs:?}");
+    assert_eq!(outs[9], NavOutcome::TimeBaseReset);
+    assert_eq!(m.on_nav(nav_at(t + 1_100_000, 0.01)), NavOutcome::Accepted);
+    assert_eq!(m.stats().nav_time_resets, 1);
+    let out = m.on_frame(&frame(5, t + 1_050_000, &mut rng));
+    assert!(!matches!(out, FrameOutcome::NeedNav | FrameOutcome::Ignored { reason: IgnoreReason::NavExpired }), "{out:?}");
 }
 
 #[test]
