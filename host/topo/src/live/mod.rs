@@ -533,10 +533,15 @@ impl LiveMapper {
     /// Add a nav sample to the window (last `nav_window_s`, at most `max_nav_samples`).
     pub fn on_nav(&mut self, nav: NavSample) -> NavOutcome {
         let [nn, ne, ee] = nav.cov_ne_m2;
-        if !finite(&nav.pos_ned_m) || !finite(&nav.cov_ne_m2) || nn < 0.0 || ee < 0.0 || nn * ee - ne * ne < 0.0 {
+        // A correlation a rounding step past +-1 (the telemetry is f32) is clamped; beyond that
+        // the covariance is not PSD and refused. (Before the firmware's estimator runs its sigmas
+        // are infinite: refused too.)
+        let rounding = nn * ee - ne * ne >= -1e-5 * nn * ee;
+        if !finite(&nav.pos_ned_m) || !finite(&nav.cov_ne_m2) || nn < 0.0 || ee < 0.0 || !rounding {
             self.stats.nav_refused += 1;
             return NavOutcome::Refused;
         }
+        let cov = [nn, ne.clamp(-(nn * ee).sqrt(), (nn * ee).sqrt()), ee];
         let pos = [nav.pos_ned_m[0], nav.pos_ned_m[1]];
         let mut outcome = NavOutcome::Accepted;
         if self.nav.back().is_some_and(|last| nav.t_us <= last.t_us) {
@@ -574,7 +579,7 @@ impl LiveMapper {
         }
         let odo_m = self.odo_m;
         self.stats.nav_samples += 1;
-        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov: nav.cov_ne_m2, aided: nav.aided, odo_m });
+        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov, aided: nav.aided, odo_m });
         let window_us = (self.cfg.nav_window_s.max(0.0) * 1e6) as u64;
         while self.nav.len() > self.cfg.max_nav_samples.max(2)
             || self.nav.front().is_some_and(|f| f.t_us.saturating_add(window_us) < nav.t_us)
