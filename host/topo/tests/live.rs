@@ -350,15 +350,19 @@ fn bad_input_is_counted_and_survived() {
     // Nav ahead of the frames is needed: a frame past the newest nav sample waits.
     assert_eq!(m.on_frame(&frame(6, 1_500_000, &mut rng)), FrameOutcome::NeedNav);
     // Non-finite nav and covariances that are not PSD are refused; time going back ignored.
-    let mut bad = nav_at(1_050_000, 0.01);
+    let mut bad = nav_at(1_040_000, 0.01);
     bad.pos_ned_m[1] = f64::NAN;
     assert_eq!(m.on_nav(bad), NavOutcome::Refused);
-    bad = nav_at(1_050_000, 0.01);
+    bad = nav_at(1_040_000, 0.01);
     bad.cov_ne_m2 = [1.0, 2.0, 1.0];
     assert_eq!(m.on_nav(bad), NavOutcome::Refused);
     bad.cov_ne_m2 = [f64::INFINITY, 0.0, 1.0];
     assert_eq!(m.on_nav(bad), NavOutcome::Refused);
     assert_eq!(m.on_nav(nav_at(500_000, 0.01)), NavOutcome::OutOfOrder);
+    // Correlation one f32 rounding past 1: clamped, accepted.
+    let mut edge = nav_at(1_050_000, 0.01);
+    edge.cov_ne_m2 = [2.0, (2.0f32 * 3.0).sqrt() as f64 * (1.0 + 1e-7), 3.0];
+    assert_eq!(m.on_nav(edge), NavOutcome::Accepted);
     let s = m.stats();
     assert_eq!((s.nav_refused, s.nav_out_of_order), (3, 1));
     // Non-finite features are refused.
@@ -439,6 +443,17 @@ fn bad_input_is_counted_and_survived() {
     assert_eq!(m.on_frame(&frame(1, gap_end + 600_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::OutOfOrder });
     assert_eq!(m.on_frame(&frame(4, gap_end + 650_000, &mut rng)), FrameOutcome::Ignored { reason: IgnoreReason::NotAided });
     assert_eq!(m.stats().camera_restarts, 1);
+    // One nav sample stamped an hour in the future: the following good ones are out of order until
+    // `nav_reset_samples` (10) agree, then the window starts again from them.
+    let future = nav_at(t + 3_600_000_000, 0.01);
+    assert_eq!(m.on_nav(future), NavOutcome::Accepted);
+    let outs: Vec<NavOutcome> = (1..=10u64).map(|k| m.on_nav(nav_at(t + k * 100_000, 0.01))).collect();
+    assert!(outs[..9].iter().all(|o| *o == NavOutcome::OutOfOrder), "{outs:?}");
+    assert_eq!(outs[9], NavOutcome::TimeBaseReset);
+    assert_eq!(m.on_nav(nav_at(t + 1_100_000, 0.01)), NavOutcome::Accepted);
+    assert_eq!(m.stats().nav_time_resets, 1);
+    let out = m.on_frame(&frame(5, t + 1_050_000, &mut rng));
+    assert!(!matches!(out, FrameOutcome::NeedNav | FrameOutcome::Ignored { reason: IgnoreReason::NavExpired }), "{out:?}");
 }
 
 #[test]

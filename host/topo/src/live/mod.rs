@@ -50,8 +50,10 @@
 //! errors, and `P1 - P0` then underestimates (or is not) the drift covariance (the floor keeps it
 //! PD). The fix uses the firmware's prior at t1 as telemetered: a fix still in flight when the
 //! next one is computed is not in that prior (`min_fix_interval_s` must exceed that round trip).
-//! Nav time going back (a sensor-head reboot) is ignored sample by sample: the map lives in the old
-//! solution's frame and time base, so start a new mapper then.
+//! Nav time going back for `nav_reset_samples` samples in a row restarts the nav window and the
+//! frame order (a corrupted future stamp, or a sensor-head reboot); after a reboot the map still
+//! lives in the old solution's frame and time base (old nodes are not candidates until the new
+//! time passes theirs), so start a new mapper then.
 
 pub mod fix;
 
@@ -111,6 +113,9 @@ pub struct LiveConfig {
     /// A frame counter that went back is a camera restart once this many frames in a row (times
     /// and counters increasing among them) agree; the first ones are ignored as out of order.
     pub restart_frames: usize,
+    /// Nav time going back is a new time base once this many samples in a row (increasing among
+    /// them) agree; the first ones are ignored as out of order.
+    pub nav_reset_samples: usize,
     /// Hard bound on the number of nodes.
     pub max_nodes: usize,
     /// Scoring (truth given): a recognition is correct within this of the node's truth (m); an
@@ -156,6 +161,7 @@ impl Default for LiveConfig {
             refractory_s: 8.0,
             min_fix_interval_s: 2.0,
             restart_frames: 3,
+            nav_reset_samples: 10,
             max_nodes: 8192,
             correct_radius_m: 3.0,
             opportunity_radius_m: 2.0,
@@ -297,6 +303,8 @@ pub enum NavOutcome {
     OutOfOrder,
     /// Non-finite, or a covariance that is not PSD: refused.
     Refused,
+    /// Accepted as the start of a new time base (see `LiveConfig::nav_reset_samples`).
+    TimeBaseReset,
 }
 
 /// A place.
@@ -350,6 +358,7 @@ pub struct LiveStats {
     pub nav_samples: u64,
     pub nav_out_of_order: u64,
     pub nav_refused: u64,
+    pub nav_time_resets: u64,
     pub nodes: usize,
     pub map_full_events: u64,
     pub trained: bool,
@@ -454,6 +463,8 @@ pub struct LiveMapper {
     /// Frames in a row with the counter below the last accepted one and time forward: (counter,
     /// time, how many).
     restart_run: Option<(u32, u64, usize)>,
+    /// Nav samples in a row with time before the newest one: (time, how many).
+    nav_back_run: Option<(u64, usize)>,
     last_fix_t_us: Option<u64>,
     recent: VecDeque<(u64, [f64; N_FEATURES])>,
     /// Node being built: (id, creation time).
@@ -498,6 +509,7 @@ impl LiveMapper {
             nav: VecDeque::new(),
             last_frame: None,
             restart_run: None,
+            nav_back_run: None,
             last_fix_t_us: None,
             recent: VecDeque::new(),
             collecting: None,
@@ -521,15 +533,40 @@ impl LiveMapper {
     /// Add a nav sample to the window (last `nav_window_s`, at most `max_nav_samples`).
     pub fn on_nav(&mut self, nav: NavSample) -> NavOutcome {
         let [nn, ne, ee] = nav.cov_ne_m2;
-        if !finite(&nav.pos_ned_m) || !finite(&nav.cov_ne_m2) || nn < 0.0 || ee < 0.0 || nn * ee - ne * ne < 0.0 {
+        // A correlation a rounding step past +-1 (the telemetry is f32) is clamped; beyond that
+        // the covariance is not PSD and refused. (Before the firmware's estimator runs its sigmas
+        // are infinite: refused too.)
+        let rounding = nn * ee - ne * ne >= -1e-5 * nn * ee;
+        if !finite(&nav.pos_ned_m) || !finite(&nav.cov_ne_m2) || nn < 0.0 || ee < 0.0 || !rounding {
             self.stats.nav_refused += 1;
             return NavOutcome::Refused;
         }
+        let cov = [nn, ne.clamp(-(nn * ee).sqrt(), (nn * ee).sqrt()), ee];
         let pos = [nav.pos_ned_m[0], nav.pos_ned_m[1]];
+        let mut outcome = NavOutcome::Accepted;
         if self.nav.back().is_some_and(|last| nav.t_us <= last.t_us) {
-            self.stats.nav_out_of_order += 1;
-            return NavOutcome::OutOfOrder;
+            // Time back: out of order, unless `nav_reset_samples` such samples in a row agree (a
+            // new time base, or one corrupted sample stamped in the future): then the window, the
+            // frame order and the sample run start again from here.
+            let run = match self.nav_back_run {
+                Some((t, k)) if nav.t_us > t => k + 1,
+                _ => 1,
+            };
+            if run < self.cfg.nav_reset_samples.max(1) {
+                self.nav_back_run = Some((nav.t_us, run));
+                self.stats.nav_out_of_order += 1;
+                return NavOutcome::OutOfOrder;
+            }
+            self.nav.clear();
+            self.odo_anchor = None;
+            self.last_frame = None;
+            self.restart_run = None;
+            self.recent.clear();
+            self.collecting = None;
+            self.stats.nav_time_resets += 1;
+            outcome = NavOutcome::TimeBaseReset;
         }
+        self.nav_back_run = None;
         // Travel: the path length through anchors at least `odo_step_m` apart, so the jitter of
         // the solution between samples is not counted as travel.
         match self.odo_anchor {
@@ -542,14 +579,14 @@ impl LiveMapper {
         }
         let odo_m = self.odo_m;
         self.stats.nav_samples += 1;
-        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov: nav.cov_ne_m2, aided: nav.aided, odo_m });
+        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov, aided: nav.aided, odo_m });
         let window_us = (self.cfg.nav_window_s.max(0.0) * 1e6) as u64;
         while self.nav.len() > self.cfg.max_nav_samples.max(2)
             || self.nav.front().is_some_and(|f| f.t_us.saturating_add(window_us) < nav.t_us)
         {
             self.nav.pop_front();
         }
-        NavOutcome::Accepted
+        outcome
     }
 
     fn nav_at(&self, t_us: u64) -> NavLookup {
