@@ -499,3 +499,33 @@ fn fixes_need_drift_since_the_node_and_nan_never_comes_out() {
         }
     }
 }
+
+/// Two laps of the square, the second over the first's nodes. With the firmware's drift small
+/// the second lap recognises them; with the drift since the nodes grown past `max_gate_sigma_m`
+/// (the DVL lost for minutes, say) the same images are not recognised (the gate would admit
+/// look-alikes), and each refusal is counted as a gate too wide.
+#[test]
+fn no_recognition_through_a_gate_wider_than_the_scene_repeats() {
+    let run = |drift_m2ps: f64| {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        let mut m = LiveMapper::new(LiveConfig { train_after_nodes: 10, ..LiveConfig::default() });
+        let mut nav_t = 0u64;
+        for k in 0..480u32 {
+            let t_us = u64::from(k) * 500_000;
+            while nav_t <= t_us + 100_000 {
+                assert_eq!(m.on_nav(nav_at(nav_t, drift_m2ps)), NavOutcome::Accepted);
+                nav_t += 100_000;
+            }
+            let p = square(t_us as f64 * 1e-6);
+            let f = CameraFrame { frame: k, t_us, features: Some(place_features(p, &mut rng)), truth_ned_m: Some(p) };
+            assert_ne!(m.on_frame(&f), FrameOutcome::NeedNav);
+        }
+        m.stats()
+    };
+    let small = run(0.002);
+    let large = run(1.0);
+    assert!(small.trained && large.trained);
+    assert!(small.recognitions >= 20 && small.gate_too_wide == 0, "{small:?}");
+    assert_eq!(large.recognitions, 0, "{large:?}");
+    assert!(large.gate_too_wide >= 20, "{large:?}");
+}

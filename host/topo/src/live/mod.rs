@@ -22,7 +22,9 @@
 //!   older than `min_revisit_s`, `D = P1 - P0` projected onto PSD with eigenvalues floored at
 //!   `min_drift_m2`, `m = x1 - x0`, gate statistic `m^T (D + V)^-1 m < gate_chi2` with
 //!   `V = recognition_sigma_m^2 I`. Then appearance: the nearest gated node in the learned metric
-//!   below the threshold is recognised. The nearest node overall (of those old enough) below the
+//!   below the threshold is recognised. A node whose gate is wider than `max_gate_sigma_m`
+//!   (1 sigma, largest axis of `D + V`) fails it: the scene has look-alike places a cell or two
+//!   apart, and a gate that wide would let them through. The nearest node overall (of those old enough) below the
 //!   threshold is counted as an appearance-only match, and as a gate refusal when its node failed
 //!   the gate.
 //! - **The fix** does not count the firmware's information twice: the node's error `e0` (cov
@@ -104,6 +106,11 @@ pub struct LiveConfig {
     pub recognition_sigma_m: f64,
     /// Position gate (chi-square, 2 dof).
     pub gate_chi2: f64,
+    /// No recognition of a node whose gate is wider than this (1 sigma of the largest axis of
+    /// `D + V`, m): the scene repeats itself (look-alike cells a few metres apart), so a gate
+    /// wider than a cell or two lets a look-alike through. When the firmware's own uncertainty has
+    /// grown that large (e.g. the DVL lost for minutes) the map waits instead of guessing.
+    pub max_gate_sigma_m: f64,
     /// At most one fix per node per this (s).
     pub refractory_s: f64,
     /// At most one fix (of any node) per this (s): longer than the round trip of a fix to the
@@ -158,6 +165,7 @@ impl Default for LiveConfig {
             threshold_factor: 1.5,
             recognition_sigma_m: 1.0,
             gate_chi2: subnav_base::chi2::chi2_2_99(),
+            max_gate_sigma_m: 2.0,
             refractory_s: 8.0,
             min_fix_interval_s: 2.0,
             restart_frames: 3,
@@ -373,6 +381,8 @@ pub struct LiveStats {
     pub gate_refusals: u64,
     /// Scoring: gate refusals of a correct appearance match (what the gate costs in recall).
     pub gate_refusals_correct: u64,
+    /// Of the gate refusals, those because the gate was wider than `max_gate_sigma_m`.
+    pub gate_too_wide: u64,
     pub recognitions: u64,
     pub fixes: u64,
     pub fixes_refused_refractory: u64,
@@ -852,7 +862,15 @@ impl LiveMapper {
             let d2 = if eligible {
                 let d = drift_cov(&p1, &sym(n.cov_ne_m2), cfg.min_drift_m2);
                 let m = x1 - Vector2::new(n.pos_ned_m[0], n.pos_ned_m[1]);
-                inv_pd(&(d + v)).map_or(f64::INFINITY, |si| (m.transpose() * si * m)[(0, 0)])
+                let s = d + v;
+                // Largest eigenvalue of the symmetric 2x2 innovation covariance.
+                let (tr, det) = (s[(0, 0)] + s[(1, 1)], s[(0, 0)] * s[(1, 1)] - s[(0, 1)] * s[(1, 0)]);
+                let lam_max = 0.5 * tr + (0.25 * tr * tr - det).max(0.0).sqrt();
+                if lam_max > cfg.max_gate_sigma_m.powi(2) {
+                    f64::MAX // too wide: fails the gate, still an appearance-only candidate
+                } else {
+                    inv_pd(&s).map_or(f64::INFINITY, |si| (m.transpose() * si * m)[(0, 0)])
+                }
             } else {
                 f64::INFINITY
             };
@@ -896,6 +914,7 @@ impl LiveMapper {
             let g = self.gate_scratch[best_all.1];
             if g >= cfg.gate_chi2 {
                 self.stats.gate_refusals += 1;
+                self.stats.gate_too_wide += u64::from(g == f64::MAX);
                 self.stats.gate_refusals_correct += u64::from(is_correct(best_all.1) == Some(true));
                 refused = Some((best_all.1, g));
             }
