@@ -68,3 +68,25 @@ fn bad_scenarios_and_arguments_are_clear_errors() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("cargo xtask build"));
 }
+
+/// `subnav run` without a scenario: the main job (camera and map in the loop), shortened; the
+/// summary has the map's lines and `--report` writes the recording, the truth and the page.
+#[test]
+fn run_without_a_scenario_runs_the_closed_loop_and_writes_the_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = subnav().args(["run", "--native", "--quiet", "--duration-s", "180", "--report"]).arg(dir.path()).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("map ") && text.contains("map fixes") && text.contains("camera frames"), "{text}");
+    for f in ["dive.snrec", "truth.csv", "report.html", "report.md", "trajectory.png", "position_error.png"] {
+        assert!(dir.path().join(f).exists(), "{f} missing; stdout:\n{text}");
+    }
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(md.contains("Map in the loop: ") && md.contains("horizontal RMSE"), "{md}");
+    // The open-loop switch needs a camera: a scenario without one is refused with a reason.
+    let sc = dir.path().join("plain.json");
+    assert!(subnav().args(["sim", "--duration-s", "30", "--out"]).arg(&sc).status().unwrap().success());
+    let bad = subnav().args(["run", "--native", "--quiet", "--no-map-fixes"]).arg(&sc).output().unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("has no camera"), "{}", String::from_utf8_lossy(&bad.stderr));
+}

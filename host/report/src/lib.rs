@@ -284,6 +284,14 @@ pub fn write(d: &ReportData, dir: &Path, images: ImageFormat, title: &str, mut p
         d.frames_ok,
         d.corrupt_frames
     );
+    if !d.map_nodes.is_empty() {
+        let _ = writeln!(
+            md,
+            "Map in the loop: {} nodes, {} loop closures accepted by the head (on the trajectory figure).\n",
+            d.map_nodes.len(),
+            d.closures.len()
+        );
+    }
     match &d.stats {
         Some(s) => {
             let _ = writeln!(md, "## Errors against truth ({} solutions scored)\n", s.scored);

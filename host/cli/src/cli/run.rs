@@ -302,6 +302,10 @@ fn print_summary(r: &DiveResult) {
             s.gate_refusals
         );
         println!(
+            "camera frames         {} out of order, {} duplicated, {} missing, {} dark; gate too wide {}",
+            s.frames_out_of_order, s.frames_duplicated, s.frames_missing, s.frames_without_features, s.gate_too_wide
+        );
+        println!(
             "map fixes             {} sent, {} accepted, {} refused by the head; frames without trigger {}, telemetry waits timed out {}",
             m.fixes_sent, m.fixes_accepted, m.fixes_refused, m.captures_without_trigger, m.nav_wait_timeouts
         );
