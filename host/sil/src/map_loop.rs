@@ -79,6 +79,9 @@ struct State {
     /// Sent fixes awaiting their `Ack`.
     sent: BTreeMap<u16, u64>,
     closed: bool,
+    /// A wait timed out and no solution has come since: frames are not waited for (a head whose
+    /// telemetry stopped must not stall the run by `nav_wait` per frame).
+    stalled: bool,
     report: MapLoopReport,
 }
 
@@ -110,6 +113,7 @@ impl MapLoop {
             next_seq: MAP_SEQ0,
             sent: BTreeMap::new(),
             closed: false,
+            stalled: false,
             report: MapLoopReport::default(),
         };
         Self { cfg, inner: Arc::new((Mutex::new(state), Condvar::new())) }
@@ -126,6 +130,7 @@ impl MapLoop {
             Uplink::Nav(n) => {
                 let _ = s.mapper.on_nav(nav_sample(n));
                 s.latest_nav_us = Some(n.t_us);
+                s.stalled = false;
             }
             Uplink::Trigger(t) => {
                 s.triggers.insert(t.frame, t.t_us);
@@ -177,12 +182,13 @@ impl MapLoop {
             loop {
                 let trig = s.triggers.get(&cap.frame).copied();
                 let covered = trig.is_some_and(|t| s.latest_nav_us.is_some_and(|n| n >= t));
-                if covered || s.closed {
+                if covered || s.closed || s.stalled {
                     break;
                 }
                 let left = deadline.saturating_duration_since(Instant::now());
                 if left.is_zero() {
                     s.report.nav_wait_timeouts += 1;
+                    s.stalled = true;
                     break;
                 }
                 s = self.inner.1.wait_timeout(s, left).map(|(g, _)| g).unwrap_or_else(|e| e.into_inner().0);
@@ -227,5 +233,30 @@ impl MapLoop {
         r.nodes = s.mapper.nodes().to_vec();
         r.closures = s.mapper.closures().to_vec();
         r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chips::camera::CameraImage;
+
+    /// A head whose telemetry stopped: the first frame waits `nav_wait`, the next ones do not,
+    /// and every frame without its trigger message is counted.
+    #[test]
+    fn silent_telemetry_costs_one_wait_not_one_per_frame() {
+        let cfg =
+            MapLoopConfig { send_fixes: true, latency_us: 500_000, live: LiveConfig::default(), nav_wait: Duration::from_millis(200) };
+        let map = MapLoop::new(cfg);
+        for k in 0..20u32 {
+            let image = CameraImage { features: Some([0.0; 20]), truth_ne_m: [0.0; 2] };
+            map.on_capture(CameraCapture { frame: k, exposed_us: u64::from(k) * 500_000, image });
+        }
+        let t0 = Instant::now();
+        assert!(map.poll(60_000_000).is_empty());
+        let waited = t0.elapsed();
+        let r = map.report();
+        assert!(waited < Duration::from_millis(1500), "waited {waited:?}");
+        assert_eq!((r.nav_wait_timeouts, r.captures_without_trigger, r.captures), (1, 20, 20));
     }
 }
