@@ -47,9 +47,7 @@ fn load(path: &PathBuf) -> Result<Scenario> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading the scenario {}", path.display()))?;
     let sc: Scenario = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a scenario (write one with `subnav sim --out {}`)", path.display(), path.display()))?;
-    if !(sc.duration_s > 0.0 && sc.duration_s <= 86_400.0) {
-        bail!("{}: duration_s must be in (0, 86400]", path.display());
-    }
+    sc.validate().with_context(|| format!("the scenario {}", path.display()))?;
     Ok(sc)
 }
 
@@ -110,6 +108,12 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.scenario.as_path()).chain(args.elf.as_deref()).collect();
+    for (flag, out) in [("--record", &args.record), ("--truth", &args.truth)] {
+        if let Some(p) = out {
+            subnav_link::output::refuse_input_as_output(flag, p, &inputs)?;
+        }
+    }
     let sc = load(&args.scenario)?;
     if let Some(seeds) = &args.seeds {
         return run_seeds(&sc, seeds, format);
