@@ -245,6 +245,8 @@ pub fn read_png_gray(path: &Path) -> Result<Gray> {
     let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND);
     let mut reader = decoder.read_info().with_context(|| format!("{} is not a readable PNG", path.display()))?;
+    let (w, h) = (reader.info().width, reader.info().height);
+    subnav_base::limits::check_image_size(&path.display().to_string(), w, h).map_err(anyhow::Error::msg)?;
     let mut buf = vec![0; reader.output_buffer_size()];
     let info = reader.next_frame(&mut buf).with_context(|| format!("decoding {}", path.display()))?;
     let (w, h) = (info.width as usize, info.height as usize);
