@@ -32,8 +32,8 @@ pub enum Sub {
         /// Seed of the simulated dive.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Dive length, s.
-        #[arg(long, default_value_t = 300.0)]
+        /// Dive length, s (at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 300.0, value_parser = super::args::f64_positive_upto(super::args::MAX_SIM_DURATION_S))]
         duration_s: f64,
         #[command(flatten)]
         page: Page,
