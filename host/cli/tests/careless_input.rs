@@ -352,3 +352,47 @@ fn svg_reports_are_drawn() {
     assert!(names.iter().any(|n| n == "trajectory.svg"), "{names:?}");
     assert!(names.iter().all(|n| !n.starts_with('.')), "temporary files left: {names:?}");
 }
+
+/// C: a recording whose header names a directory, a text file or `/dev/zero` as its ELF: the
+/// error names the ELF and that it came from the header (and `/dev/zero` is not read until
+/// out of memory).
+#[test]
+fn a_bad_elf_in_the_header_is_named() {
+    use subnav_link::record::{Meta, Stream, Writer};
+    let dir = tempfile::tempdir().unwrap();
+    let text = dir.path().join("notes.txt");
+    std::fs::write(&text, "not an ELF\n").unwrap();
+    for (elf, why) in
+        [(dir.path().to_path_buf(), "not a regular file"), (text, "not an ELF file"), ("/dev/zero".into(), "not a regular file")]
+    {
+        let mut meta = Meta::new("test");
+        meta.elf = Some(elf.display().to_string());
+        let mut w = Writer::new(Vec::new(), &meta).unwrap();
+        w.chunk(Stream::Defmt, 1, b"\x01\x02").unwrap();
+        let rec = dir.path().join("r.snrec");
+        std::fs::write(&rec, w.into_inner()).unwrap();
+        let elf_s = elf.display().to_string();
+        refused(subnav().args(["decode", "--file"]).arg(&rec), &[&elf_s, why, "header of"]);
+        refused(subnav().arg("export").arg(&rec).arg("--csv").arg(dir.path().join("csv")), &[&elf_s, why, "header of"]);
+    }
+}
+
+/// B: a truth that does not overlap the recording gave no statistics and no warning.
+#[test]
+fn a_truth_that_does_not_overlap_is_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rep");
+    let (o, e) = run(subnav().args(["report", "simulate", "--duration-s", "30", "--out"]).arg(&out));
+    assert!(o.status.success(), "{e}");
+    let truth = dir.path().join("late_truth.csv");
+    std::fs::write(&truth, "t_s,n_m,e_m,d_m,yaw_rad\n5000,0,0,0,0\n5001,0,0,0,0\n").unwrap();
+    let (o, e) = run(subnav()
+        .args(["report", "recording"])
+        .arg(out.join("dive.snrec"))
+        .arg("--truth")
+        .arg(&truth)
+        .arg("--out")
+        .arg(dir.path().join("r2")));
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains("does not overlap"), "{e}");
+}

@@ -20,7 +20,8 @@ fn the_default_scenario_is_valid() {
 #[test]
 fn every_bad_field_is_refused_with_its_name() {
     use serde_json::json;
-    let cases: Vec<(&str, Box<dyn Fn(&mut serde_json::Value)>)> = vec![
+    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+    let cases: Vec<(&str, Edit)> = vec![
         ("duration_s", Box::new(|v| v["duration_s"] = json!(1e9))),
         ("lat_deg", Box::new(|v| v["lat_deg"] = json!(95.0))),
         ("lon_deg", Box::new(|v| v["lon_deg"] = json!(500.0))),

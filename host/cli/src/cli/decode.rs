@@ -101,7 +101,11 @@ fn run_recording(path: &std::path::Path, args: &Args, format: Format) -> Result<
         eprintln!("warning: {}: {e}; its metadata (source, ELF) is lost, the chunks after it are read", path.display());
     }
     let elf = args.elf.clone().or_else(|| reader.meta.elf.as_ref().map(PathBuf::from).filter(|p| p.exists()));
-    let table = elf.as_ref().map(|e| DefmtTable::from_elf_path(e)).transpose()?;
+    let table = elf
+        .as_ref()
+        .map(|e| DefmtTable::from_elf_path(e))
+        .transpose()
+        .map_err(|e| if args.elf.is_some() { e } else { e.context(format!("the ELF named in the header of {}", path.display())) })?;
     let mut logs = table.as_ref().map(|t| t.stream());
     let mut dec = UplinkDecoder::new();
     let (mut defmt_bytes, mut damaged) = (0u64, 0u64);

@@ -38,7 +38,9 @@ pub fn load_session(recording: &std::path::Path, elf: Option<&std::path::Path>) 
         eprintln!("warning: {}: {e}; its metadata (source, ELF) is lost, the chunks after it are read", recording.display());
     }
     let table = match &elf_path {
-        Some(p) if p.exists() => Some(DefmtTable::from_elf_path(p)?),
+        Some(p) if p.exists() => Some(DefmtTable::from_elf_path(p).with_context(|| {
+            if elf.is_some() { "the --elf given".to_string() } else { format!("the ELF named in the header of {}", recording.display()) }
+        })?),
         Some(p) => {
             note = Some(format!("defmt logs not decoded: the firmware ELF {} is not there (give it with --elf)", p.display()));
             None
