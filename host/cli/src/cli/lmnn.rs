@@ -34,8 +34,8 @@ pub enum Sub {
         /// Target neighbours per sample (and the k of kNN), 1..=1000.
         #[arg(long, allow_hyphen_values = true, default_value_t = 3, value_parser = super::args::int_in(1usize..=1000))]
         k: usize,
-        /// Maximum gradient iterations (1..=1000000).
-        #[arg(long, allow_hyphen_values = true, default_value_t = 1000, value_parser = super::args::int_in(1usize..=1_000_000))]
+        /// Maximum gradient iterations (2..=1000000).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1000, value_parser = super::args::int_in(2usize..=1_000_000))]
         max_iter: usize,
         /// Pull-term weight (push gets 1 - this), 0..=1.
         #[arg(long, allow_hyphen_values = true, default_value_t = 0.5, value_parser = super::args::f64_in(0.0..=1.0))]
