@@ -396,3 +396,40 @@ fn a_truth_that_does_not_overlap_is_a_warning() {
     assert!(o.status.success(), "{e}");
     assert!(e.contains("does not overlap"), "{e}");
 }
+
+/// B: `ice run --input` on a data set with a camera of focal length, baseline or pixel noise 0
+/// or a non-rotation `rot_bc` ("0 features used"), a still period longer than the data, empty
+/// tracks or IMU samples 1 ns apart ("0 poses", exit 0): errors naming the file and the bound.
+#[test]
+fn ice_data_sets_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("ds");
+    let (o, e) = run(subnav().args(["ice", "simulate", "--distance-m", "20", "--write"]).arg(&ds));
+    assert!(o.status.success(), "{e}");
+    let cam_text = std::fs::read_to_string(ds.join("camera.json")).unwrap();
+    let cam: serde_json::Value = serde_json::from_str(&cam_text).unwrap();
+    let ds_s = ds.display().to_string();
+    for (field, v, needle) in [
+        ("focal_px", serde_json::json!(0.0), "focal_px must be > 0"),
+        ("baseline_m", serde_json::json!(0.0), "baseline_m must be > 0"),
+        ("sigma_px", serde_json::json!(-1.0), "sigma_px must be > 0"),
+        ("rot_bc", serde_json::json!([2.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]), "rot_bc must be a rotation"),
+    ] {
+        let mut c = cam.clone();
+        c[field] = v;
+        std::fs::write(ds.join("camera.json"), c.to_string()).unwrap();
+        refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &[&ds_s, needle]);
+    }
+    std::fs::write(ds.join("camera.json"), &cam_text).unwrap();
+    std::fs::write(ds.join("meta.json"), "{\"still_s\": 1e9}").unwrap();
+    refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["still_s must be in"]);
+    std::fs::write(ds.join("meta.json"), "{\"still_s\": 2.0}").unwrap();
+    let imu = std::fs::read_to_string(ds.join("imu.csv")).unwrap();
+    let mut lines: Vec<String> = imu.lines().map(String::from).collect();
+    lines[2] = lines[2].replacen("0.005000", "0.000000001", 1);
+    std::fs::write(ds.join("imu.csv"), lines.join("\n") + "\n").unwrap();
+    refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["imu.csv", "closer than 10 us"]);
+    std::fs::write(ds.join("imu.csv"), &imu).unwrap();
+    std::fs::write(ds.join("tracks.csv"), "t_s,frame_id,feature_id,ul,vl,ur,vr\n").unwrap();
+    refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["tracks.csv"]);
+}
