@@ -160,7 +160,7 @@ impl Dataset {
         within("camera.json height_px", c.height_px, 0.0, f64::from(subnav_base::limits::MAX_IMAGE_SIDE))?;
         let r = c.rot_bc;
         let ortho = (r.transpose() * r - nalgebra::Matrix3::identity()).abs().max();
-        if !(ortho < 1e-6 && (r.determinant() - 1.0).abs() < 1e-6) || !c.pos_bc_m.iter().all(|v| v.is_finite()) {
+        if !(ortho < 1e-6 && (r.determinant() - 1.0).abs() < 1e-6 && c.pos_bc_m.iter().all(|v| v.is_finite())) {
             bail!(
                 "camera.json rot_bc must be a rotation (orthonormal, determinant 1) and pos_bc_m finite (R^T R - I off by {ortho:.2e}, det {:.6})",
                 r.determinant()
