@@ -16,6 +16,8 @@ use crate::nav::NavConfig;
 pub const IMU_RATE_HZ: u32 = 200;
 pub const POLARIZATION_RATE_HZ: u32 = 10;
 pub const DEPTH_RATE_HZ: u32 = 10;
+/// Camera trigger rate (the downward polarization camera the host's topological map uses).
+pub const CAMERA_RATE_HZ: u32 = 2;
 
 /// Polarization units on the head: a ring around the body z axis, looking slightly up.
 pub const POLARIZATION_UNITS: usize = 4;

@@ -4,7 +4,8 @@
 //!
 //! Rates: IMU 200 Hz, polarization 10 Hz, depth 10 Hz (`subnav_core::head`), the DVL at its own
 //! rate (2-15 Hz, polled every tick), navigation telemetry `nav_rate_hz` (configurable 1..=50),
-//! health 1 Hz. A failed read is counted and reported as a fault (rate-limited) and the
+//! health 1 Hz, the camera trigger `head::CAMERA_RATE_HZ` (when the suite has a camera: each
+//! pulse is announced by an `Uplink::Trigger` with its time and frame number). A failed read is counted and reported as a fault (rate-limited) and the
 //! estimator goes on with the other sensors.
 //!
 //! Time of validity: DVL reports and position fixes arrive after the instant they describe; the
@@ -20,7 +21,7 @@ use subnav_wire::{
 use subnav_core::ephemeris::Observer;
 use subnav_core::head;
 use subnav_core::nav::NavError;
-use subnav_wire::{DvlSample, PolarizationSample, RawSample};
+use subnav_wire::{CameraTrigger, DvlSample, PolarizationSample, RawSample};
 
 use crate::estimator::Estimator;
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
@@ -92,6 +93,9 @@ pub struct App {
     polarization_task: Periodic,
     depth_task: Periodic,
     dvl_task: Periodic,
+    camera_task: Periodic,
+    /// Camera frames triggered since boot (the next frame's number).
+    camera_frames: u32,
     faults: FaultLog,
     boot_us: u64,
 }
@@ -148,6 +152,8 @@ impl App {
             polarization_task: Periodic::new(1_000_000 / head::POLARIZATION_RATE_HZ as u64),
             depth_task: Periodic::new(1_000_000 / head::DEPTH_RATE_HZ as u64),
             dvl_task: Periodic::new(SERIAL_POLL_US),
+            camera_task: Periodic::new(1_000_000 / head::CAMERA_RATE_HZ as u64),
+            camera_frames: 0,
             faults: FaultLog::new(),
             boot_us: 0,
         }
@@ -218,6 +224,17 @@ impl App {
                     Ok(None) => break,
                     Err(f) => self.fault(now_us, f, sink),
                 }
+            }
+        }
+        if self.camera_task.due(now_us) {
+            match sensors.trigger_camera(now_us) {
+                Ok(true) => {
+                    let trigger = CameraTrigger { t_us: now_us, frame: self.camera_frames };
+                    self.camera_frames = self.camera_frames.wrapping_add(1);
+                    self.telemetry.send(&Uplink::Trigger(trigger), sink);
+                }
+                Ok(false) => {}
+                Err(f) => self.fault(now_us, f, sink),
             }
         }
         if self.polarization_task.due(now_us) {
@@ -574,6 +591,58 @@ mod tests {
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Compass(c) if c.heading_rad.is_none() && c.no_fix_reason != 0)));
         let imu_raw = msgs.iter().filter(|m| matches!(m, Uplink::Raw(RawSample::Imu(_)))).count();
         assert!((2900..=3001).contains(&imu_raw), "raw IMU at 200 Hz minus failed reads: {imu_raw}");
+    }
+
+    /// A head with a camera whose trigger line fails on the 3rd pulse.
+    struct CameraHead {
+        still: StillHead,
+        pulses: Vec<u64>,
+    }
+
+    impl SensorSuite for CameraHead {
+        fn read_imu(&mut self, t_us: u64) -> Result<subnav_wire::ImuSample, SensorFault> {
+            self.still.read_imu(t_us)
+        }
+        fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {
+            self.still.read_polarization(t_us, unit)
+        }
+        fn read_depth(&mut self, t_us: u64, rho: f32) -> Result<subnav_wire::DepthSample, SensorFault> {
+            self.still.read_depth(t_us, rho)
+        }
+        fn trigger_camera(&mut self, t_us: u64) -> Result<bool, SensorFault> {
+            self.pulses.push(t_us);
+            if self.pulses.len() == 3 {
+                return Err(SensorFault { source: FaultSource::Camera, kind: FaultKind::BusNack });
+            }
+            Ok(true)
+        }
+    }
+
+    #[test]
+    fn camera_is_triggered_at_its_rate_and_each_frame_announced_with_its_time() {
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut head = CameraHead { still: StillHead { imu_reads: 0 }, pulses: Vec::new() };
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        for ms in 0..=3_000u64 {
+            app.sensor_tick(ms * 1000, &mut head, &mut out);
+            app.poll(ms * 1000, &mut out);
+        }
+        let period = 1_000_000 / u64::from(head::CAMERA_RATE_HZ);
+        assert_eq!(head.pulses, (0..=3_000_000 / period).map(|k| k * period).collect::<Vec<_>>());
+        let msgs = decode_all(&out);
+        let trig: Vec<CameraTrigger> = msgs.iter().filter_map(|m| if let Uplink::Trigger(t) = m { Some(*t) } else { None }).collect();
+        // The failed pulse is a fault, not a frame: numbers stay consecutive over real frames.
+        let expect: Vec<CameraTrigger> = head
+            .pulses
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| *k != 2)
+            .enumerate()
+            .map(|(n, (_, &t))| CameraTrigger { t_us: t, frame: n as u32 })
+            .collect();
+        assert_eq!(trig, expect);
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(f) if f.source == FaultSource::Camera)));
     }
 
     fn acks(out: &[u8]) -> Vec<CommandAck> {

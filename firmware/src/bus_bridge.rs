@@ -357,6 +357,47 @@ impl<L: ByteLink> embedded_io::Write for BridgeUart<'_, L> {
     }
 }
 
+/// A digital output on the bridge (embedded-hal `OutputPin`), e.g. the camera's trigger line:
+/// each level change is one transaction, so the host sees it at the firmware's logical time.
+pub struct BridgePin<'a, L> {
+    client: &'a RefCell<BridgeClient<L>>,
+    pin: u8,
+}
+
+impl<'a, L> BridgePin<'a, L> {
+    pub fn new(client: &'a RefCell<BridgeClient<L>>, pin: u8) -> Self {
+        Self { client, pin }
+    }
+}
+
+impl<L: ByteLink> BridgePin<'_, L> {
+    fn set(&mut self, high: bool) -> Result<(), BridgeError> {
+        let level = Bytes::from_slice(&[u8::from(high)]).ok_or(BridgeError(BusFault::Other))?;
+        let Ok(mut client) = self.client.try_borrow_mut() else { return Err(BridgeError(BusFault::Other)) };
+        client.transact(Bus::Gpio { pin: self.pin }, &[Op::Write(level)]).map_err(BridgeError)?;
+        Ok(())
+    }
+}
+
+impl embedded_hal::digital::Error for BridgeError {
+    fn kind(&self) -> embedded_hal::digital::ErrorKind {
+        embedded_hal::digital::ErrorKind::Other
+    }
+}
+
+impl<L: ByteLink> embedded_hal::digital::ErrorType for BridgePin<'_, L> {
+    type Error = BridgeError;
+}
+
+impl<L: ByteLink> embedded_hal::digital::OutputPin for BridgePin<'_, L> {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.set(false)
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        self.set(true)
+    }
+}
+
 fn split_checked(s: &[u8], n: usize) -> Option<(&[u8], &[u8])> {
     (n <= s.len()).then(|| s.split_at(n))
 }

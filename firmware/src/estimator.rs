@@ -413,6 +413,7 @@ impl Estimator {
                 sigma_pos_m: [f32::INFINITY; 3],
                 sigma_vel_mps: [f32::INFINITY; 3],
                 sigma_att_rad: [f32::INFINITY; 3],
+                cov_ne_m2: 0.0,
             },
         }
     }

@@ -17,6 +17,7 @@
 //! the DVL reports in its own axes (its mounting is applied by the navigation filter).
 
 use embedded_hal::delay::DelayNs;
+use embedded_hal::digital::OutputPin;
 use embedded_hal::i2c::I2c;
 use embedded_hal::spi::SpiDevice;
 use embedded_io::{Read, ReadReady, Write};
@@ -69,6 +70,23 @@ impl Write for NoDvl {
     }
 }
 
+/// The trigger line of a board without a camera: pulses go nowhere and
+/// [`SensorSuite::trigger_camera`] says there is no camera.
+pub struct NoCamera;
+
+impl embedded_hal::digital::ErrorType for NoCamera {
+    type Error = core::convert::Infallible;
+}
+
+impl OutputPin for NoCamera {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
 /// Results of bringing the sensors up: `None` = ok, else the fault.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InitReport {
@@ -77,7 +95,7 @@ pub struct InitReport {
     pub depth: Option<FaultKind>,
 }
 
-pub struct HeadSuite<SPI: SpiDevice, I2C: I2c, U: embedded_io::ErrorType = NoDvl> {
+pub struct HeadSuite<SPI: SpiDevice, I2C: I2c, U: embedded_io::ErrorType = NoDvl, P: OutputPin = NoCamera> {
     imu: Icm42688<SPI>,
     imu_ready: bool,
     imu_stuck: StuckDetector<6>,
@@ -91,6 +109,8 @@ pub struct HeadSuite<SPI: SpiDevice, I2C: I2c, U: embedded_io::ErrorType = NoDvl
     last_depth: Option<(u64, DepthSample)>,
     depth_error: Option<FaultKind>,
     dvl: Option<DvlA50<U>>,
+    /// The camera's trigger line (`None`: no camera).
+    camera_trigger: Option<P>,
     pub init: InitReport,
 }
 
@@ -98,7 +118,7 @@ fn kind<E: BusErrorKind>(e: &Error<E>) -> FaultKind {
     e.fault_kind()
 }
 
-impl<SPI, I2C, U> HeadSuite<SPI, I2C, U>
+impl<SPI, I2C, U> HeadSuite<SPI, I2C, U, NoCamera>
 where
     SPI: SpiDevice,
     SPI::Error: BusErrorKind,
@@ -135,10 +155,59 @@ where
             last_depth: None,
             depth_error: None,
             dvl: dvl_uart.map(|u| DvlA50::new(u, dvl_a50::DEFAULT_BAUD)),
+            camera_trigger: None,
             init,
         }
     }
 
+    /// The same suite with a camera on trigger line `pin` (driven low here, pulsed high per frame).
+    pub fn with_camera_trigger<P: OutputPin>(self, mut pin: P) -> HeadSuite<SPI, I2C, U, P> {
+        let _ = pin.set_low();
+        let HeadSuite {
+            imu,
+            imu_ready,
+            imu_stuck,
+            adcs,
+            scan,
+            scanning,
+            scan_grid_us,
+            depth,
+            depth_ready,
+            last_depth,
+            depth_error,
+            dvl,
+            init,
+            ..
+        } = self;
+        HeadSuite {
+            imu,
+            imu_ready,
+            imu_stuck,
+            adcs,
+            scan,
+            scanning,
+            scan_grid_us,
+            depth,
+            depth_ready,
+            last_depth,
+            depth_error,
+            dvl,
+            camera_trigger: Some(pin),
+            init,
+        }
+    }
+}
+
+impl<SPI, I2C, U, P> HeadSuite<SPI, I2C, U, P>
+where
+    SPI: SpiDevice,
+    SPI::Error: BusErrorKind,
+    I2C: I2c,
+    I2C::Error: BusErrorKind,
+    U: Read + ReadReady + Write,
+    U::Error: BusErrorKind,
+    P: OutputPin,
+{
     /// The DVL driver's counters (`None` without a DVL).
     pub fn dvl_counters(&self) -> Option<dvl_a50::DvlCounters> {
         self.dvl.as_ref().map(|d| *d.counters())
@@ -158,7 +227,7 @@ where
     }
 }
 
-impl<SPI, I2C, U> SensorSuite for HeadSuite<SPI, I2C, U>
+impl<SPI, I2C, U, P> SensorSuite for HeadSuite<SPI, I2C, U, P>
 where
     SPI: SpiDevice,
     SPI::Error: BusErrorKind,
@@ -166,7 +235,16 @@ where
     I2C::Error: BusErrorKind,
     U: Read + ReadReady + Write,
     U::Error: BusErrorKind,
+    P: OutputPin,
+    P::Error: BusErrorKind,
 {
+    fn trigger_camera(&mut self, _t_us: u64) -> Result<bool, SensorFault> {
+        let Some(pin) = self.camera_trigger.as_mut() else { return Ok(false) };
+        // A pulse: the camera exposes on the rising edge.
+        let pulse = pin.set_high().and_then(|()| pin.set_low());
+        pulse.map(|()| true).map_err(|e| SensorFault { source: FaultSource::Camera, kind: e.fault_kind() })
+    }
+
     fn poll_dvl(&mut self, t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
         let Some(dvl) = self.dvl.as_mut() else { return Ok(None) };
         for _ in 0..DVL_SENTENCES_PER_POLL {

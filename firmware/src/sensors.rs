@@ -38,6 +38,11 @@ pub trait SensorSuite {
     fn poll_dvl(&mut self, _t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
         Ok(None)
     }
+    /// Pulse the camera's trigger line at `t_us`: `Ok(true)` when pulsed, `Ok(false)` when the
+    /// suite has no camera.
+    fn trigger_camera(&mut self, _t_us: u64) -> Result<bool, SensorFault> {
+        Ok(false)
+    }
 }
 
 /// Counts faults per (source, kind) and decides when to report them: the first occurrence,

@@ -33,6 +33,9 @@ pub enum Bus {
     /// `len` bytes: the response holds the bytes fully received by the request's time (possibly
     /// none); `Op::Write` sends bytes at that time.
     Uart { port: u8 },
+    /// Digital output `pin` (e.g. a camera's trigger line): `Op::Write` of one byte, 0 = low,
+    /// anything else = high, at the request's time.
+    Gpio { pin: u8 },
 }
 
 /// A byte buffer of up to [`MAX_OP_BYTES`].

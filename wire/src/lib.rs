@@ -19,11 +19,11 @@ pub use messages::*;
 use postcard::experimental::max_size::MaxSize;
 
 /// Bumped on every incompatible change of the messages or framing.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0x6ad2_acd2_f4f8_e9ec;
+pub const SCHEMA_FINGERPRINT: u64 = 0x2809_183b_a216_fc09;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);

@@ -71,6 +71,9 @@ pub struct NavSolution {
     pub sigma_pos_m: [f32; 3],
     pub sigma_vel_mps: [f32; 3],
     pub sigma_att_rad: [f32; 3],
+    /// North-east covariance of the position error, m^2 (with `sigma_pos_m` the whole
+    /// horizontal covariance, which a map built from this solution needs).
+    pub cov_ne_m2: f32,
 }
 
 /// One IMU sample in the body frame, after scaling to SI units.
@@ -200,9 +203,13 @@ pub struct FilterHealth {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FaultSource {
     Imu,
-    Polarization { unit: u8 },
+    Polarization {
+        unit: u8,
+    },
     Depth,
     Dvl,
+    /// The camera trigger line.
+    Camera,
     Link,
     Filter,
     Scheduler,
@@ -259,6 +266,7 @@ impl core::fmt::Display for FaultSource {
             FaultSource::Polarization { unit } => write!(f, "polarization unit {unit}"),
             FaultSource::Depth => f.write_str("depth sensor"),
             FaultSource::Dvl => f.write_str("DVL"),
+            FaultSource::Camera => f.write_str("camera trigger"),
             FaultSource::Link => f.write_str("host link"),
             FaultSource::Filter => f.write_str("navigation filter"),
             FaultSource::Scheduler => f.write_str("scheduler"),
@@ -338,6 +346,16 @@ pub struct CommandAck {
     pub result: Result<(), Refusal>,
 }
 
+/// The head fired its camera trigger line: frame `frame` (counting from 0 since boot) is
+/// exposed at sensor-head time `t_us`. A camera on the host side stamps its images with this.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CameraTrigger {
+    pub t_us: u64,
+    pub frame: u32,
+}
+
 /// Firmware -> host.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
 #[cfg_attr(test, derive(postcard_schema::Schema))]
@@ -350,6 +368,7 @@ pub enum Uplink {
     Health(FilterHealth),
     Fault(Fault),
     Ack(CommandAck),
+    Trigger(CameraTrigger),
 }
 
 impl Uplink {
@@ -365,6 +384,7 @@ impl Uplink {
             Uplink::Compass(m) => m.t_us,
             Uplink::Health(m) => m.t_us,
             Uplink::Fault(m) => m.t_us,
+            Uplink::Trigger(m) => m.t_us,
             Uplink::Ack(_) => return None,
         })
     }
@@ -382,6 +402,7 @@ impl Uplink {
             Uplink::Health(_) => "health",
             Uplink::Fault(_) => "fault",
             Uplink::Ack(_) => "ack",
+            Uplink::Trigger(_) => "camera.trigger",
         }
     }
 }

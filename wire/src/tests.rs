@@ -32,6 +32,7 @@ fn nav(t_us: u64) -> Uplink {
         sigma_pos_m: [0.1; 3],
         sigma_vel_mps: [0.01; 3],
         sigma_att_rad: [0.001; 3],
+        cov_ne_m2: 0.0,
     })
 }
 

@@ -3,7 +3,8 @@
 //! - `cargo xtask test`  : install what is missing, build both firmware boards, check sizes and
 //!                         that no heap allocator is linked, set up the peer venv, run every test,
 //!                         build the `probe` feature of the host tool.
-//! - `cargo xtask run`   : build the QEMU firmware and run it with the host decoding live.
+//! - `cargo xtask run`   : build the QEMU firmware and run the main job: the closed-loop dive
+//!   (camera and map in the loop) with a live status, the error summary and the report.
 //! - `cargo xtask build` : build the firmware boards (`--board qemu|stm32f4|all`).
 //! - `cargo xtask size`  : flash / RAM per board binary and the no-heap check.
 //! - `cargo xtask setup` : only install the toolchain pieces and the peer venv.
@@ -40,7 +41,8 @@ pub fn run(cmd: &mut Command) -> Result<()> {
 fn usage() -> &'static str {
     "usage: cargo xtask <test|run|build|size|setup> [options]
   test                 install missing tools, build firmware, size check, all tests
-  run [-- ARGS]        build the QEMU firmware and run it under `subnav qemu` (ARGS go to subnav qemu)
+  run [-- ARGS]        build the QEMU firmware and run the closed-loop dive (`subnav run`, 900 s, report in
+                       target/subnav-run; ARGS go to subnav run, `-- --raw` shows raw telemetry lines instead)
   build [--board B]    build firmware: B = qemu | stm32f4 | all (default all)
   size                 flash/RAM report per board and the no-heap check
   setup                install toolchain pieces and the peer venv only
@@ -94,11 +96,25 @@ fn real_main() -> Result<()> {
             let elf = tc.build(firmware::Board::Qemu)?;
             let extra: Vec<&String> = rest.iter().skip_while(|a| *a != "--").skip(1).collect();
             let mut c = host_cargo();
-            c.args(["run", "--quiet", "-p", "subnav-host", "--bin", "subnav", "--", "qemu", "--elf"]).arg(&elf);
-            if !extra.iter().any(|a| a.starts_with("--run-ms")) {
-                c.args(["--run-ms", "5000"]);
+            c.args(["run", "--quiet", "-p", "subnav-host", "--bin", "subnav", "--"]);
+            if extra.iter().any(|a| *a == "--raw") {
+                // The raw telemetry lines of the board alone (no simulated sensors).
+                c.args(["qemu", "--elf"]).arg(&elf);
+                if !extra.iter().any(|a| a.starts_with("--run-ms")) {
+                    c.args(["--run-ms", "5000"]);
+                }
+                c.args(extra.into_iter().filter(|a| *a != "--raw"));
+            } else {
+                // The main job: the closed-loop dive under QEMU with its report.
+                c.args(["run", "--elf"]).arg(&elf);
+                if !extra.iter().any(|a| a.starts_with("--duration-s")) {
+                    c.args(["--duration-s", &RUN_DURATION_S.to_string()]);
+                }
+                if !extra.iter().any(|a| a.starts_with("--report")) {
+                    c.arg("--report").arg(root().join("target").join("subnav-run"));
+                }
+                c.args(extra);
             }
-            c.args(extra);
             run(&mut c)
         }
         "test" => test(rest),
@@ -111,6 +127,10 @@ fn real_main() -> Result<()> {
         other => bail!("unknown command {other:?}\n{}", usage()),
     }
 }
+
+/// Length of the dive `cargo xtask run` shows (s of the 30-minute main-job survey: long enough
+/// to cross the first block of the survey and close loops on it; about 4 minutes under QEMU).
+const RUN_DURATION_S: u32 = 900;
 
 fn flag_value<'a>(args: &'a [String], flag: &str) -> Option<&'a str> {
     args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).map(String::as_str)

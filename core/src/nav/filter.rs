@@ -748,6 +748,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             sigma_pos_m: [sd(POS), sd(POS + 1), sd(POS + 2)],
             sigma_vel_mps: [sd(VEL), sd(VEL + 1), sd(VEL + 2)],
             sigma_att_rad: [libm::sqrtf(pl[(0, 0)].max(0.0)), libm::sqrtf(pl[(1, 1)].max(0.0)), libm::sqrtf(pl[(2, 2)].max(0.0))],
+            cov_ne_m2: p.get((POS, POS + 1)).copied().unwrap_or(0.0),
         }
     }
 

@@ -10,6 +10,7 @@
 //!   map to telemetry fault kinds;
 //! - the DVL: not wired on this board yet (`NoDvl`: the head runs without it); the QEMU board
 //!   and the native runs have it on UART 0;
+//! - the camera trigger line: PB0, push-pull, pulsed high for each frame;
 //! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s.
 //!
 //! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
@@ -143,7 +144,8 @@ fn main() -> ! {
         HalI2c(RefCellDevice::new(&i2c)),
         None::<NoDvl>,
         &mut delay,
-    );
+    )
+    .with_camera_trigger(gpiob.pb0.into_push_pull_output());
     defmt::info!(
         "sensor init: imu ok {=bool}, polarization ok {=?}, depth ok {=bool}",
         suite.init.imu.is_none(),

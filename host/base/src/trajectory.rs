@@ -30,6 +30,12 @@ pub struct Lawnmower {
     /// Duration of each speed change (constant acceleration), s; 0 = instantaneous steps.
     #[serde(default = "default_ramp_s")]
     pub ramp_s: f64,
+    /// 0: parallel legs forever (the pattern moves on sideways). `L > 0` (made odd): a
+    /// cross-hatch that keeps crossing its own track: `L` legs, a quarter turn, `L` legs across
+    /// the first block, a quarter turn back, and so on (square blocks when
+    /// `leg_m = (L - 1) spacing_m`).
+    #[serde(default)]
+    pub cross_legs: u32,
 }
 
 fn default_ramp_s() -> f64 {
@@ -47,6 +53,7 @@ impl Default for Lawnmower {
             heading0_rad: 0.3,
             rest_s: 15.0,
             ramp_s: default_ramp_s(),
+            cross_legs: 0,
         }
     }
 }
@@ -142,12 +149,23 @@ impl Trajectory {
             push(ramp, (0.0, 0.0, 0.0), (u / ramp, 0.0), &mut t, &mut p, &mut yaw);
             first_leg_left -= 0.5 * u * ramp;
         }
-        let mut k = 0;
-        while t < duration_s {
+        let block_legs = if cfg.cross_legs > 0 { cfg.cross_legs | 1 } else { u32::MAX };
+        let (mut k, mut in_block, mut block) = (0u64, 0u32, 0u32);
+        while t < duration_s && u > 0.0 {
             let leg = if k == 0 { first_leg_left } else { cfg.leg_m };
             push(leg / u, (u, 0.0, 0.0), (0.0, 0.0), &mut t, &mut p, &mut yaw);
-            let dir = if k % 2 == 0 { 1.0 } else { -1.0 };
-            push(std::f64::consts::PI / turn_rate, (u, 0.0, dir * turn_rate), (0.0, 0.0), &mut t, &mut p, &mut yaw);
+            // Blocks alternate their first turn (right, then left); between blocks a quarter
+            // turn (left, then right) heads across the block just flown.
+            let block_sign = if block % 2 == 0 { 1.0 } else { -1.0 };
+            if in_block + 1 >= block_legs {
+                push(std::f64::consts::FRAC_PI_2 / turn_rate, (u, 0.0, -block_sign * turn_rate), (0.0, 0.0), &mut t, &mut p, &mut yaw);
+                block += 1;
+                in_block = 0;
+            } else {
+                let dir = if in_block % 2 == 0 { block_sign } else { -block_sign };
+                push(std::f64::consts::PI / turn_rate, (u, 0.0, dir * turn_rate), (0.0, 0.0), &mut t, &mut p, &mut yaw);
+                in_block += 1;
+            }
             k += 1;
         }
         Trajectory { segments: segs, duration_s }
@@ -203,6 +221,34 @@ mod tests {
         assert!((a.pos_ned_m - Vector3::new(cfg.leg_m, 0.0, 0.0)).norm() < 1e-9);
         assert!((b.pos_ned_m - Vector3::new(cfg.leg_m, cfg.spacing_m, 0.0)).norm() < 1e-9, "{:?}", b.pos_ned_m);
         assert!((b.yaw_rad - std::f64::consts::PI).abs() < 1e-9);
+    }
+
+    #[test]
+    fn cross_hatch_crosses_its_own_track() {
+        let cfg = Lawnmower {
+            rest_s: 0.0,
+            depth_m: 0.0,
+            heading0_rad: 0.0,
+            ramp_s: 0.0,
+            leg_m: 60.0,
+            spacing_m: 15.0,
+            cross_legs: 5,
+            ..Lawnmower::default()
+        };
+        let tr = Trajectory::lawnmower(&cfg, 1800.0);
+        let pts: Vec<Vector3<f64>> = (0..1800).map(|k| tr.at(k as f64).pos_ned_m).collect();
+        // The first block's lanes run north-south; the second block's east-west, over the same square.
+        let block_s = 5.0 * 60.0 + 4.0 * std::f64::consts::PI * 7.5 + std::f64::consts::FRAC_PI_2 * 7.5;
+        let second = tr.at(block_s + 30.0);
+        assert!(second.vel_ned_mps.x.abs() < 1e-9 && (second.vel_ned_mps.y.abs() - 1.0).abs() < 1e-9, "{:?}", second.vel_ned_mps);
+        assert!((0.0..=70.0).contains(&second.pos_ned_m.x) && (-10.0..=70.0).contains(&second.pos_ned_m.y), "{:?}", second.pos_ned_m);
+        // Every point of the later blocks passes within 8 m of the first block's track at some
+        // time, and the whole dive stays over the first block's square (it does not wander off).
+        let first: Vec<&Vector3<f64>> = pts.iter().take(block_s as usize).collect();
+        let near = pts.iter().skip(block_s as usize).filter(|p| first.iter().any(|q| (*p - *q).norm() < 8.0)).count();
+        let later = pts.len() - block_s as usize;
+        assert!(near as f64 > 0.5 * later as f64, "{near} of {later}");
+        assert!(pts.iter().all(|p| p.x > -40.0 && p.x < 100.0 && p.y > -40.0 && p.y < 100.0));
     }
 
     #[test]

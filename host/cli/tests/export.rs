@@ -22,6 +22,7 @@ fn messages() -> Vec<Uplink> {
             sigma_pos_m: [0.5; 3],
             sigma_vel_mps: [0.1; 3],
             sigma_att_rad: [0.01; 3],
+            cov_ne_m2: 0.0,
         }));
         if i % 4 == 0 {
             v.push(Uplink::Health(FilterHealth {

@@ -24,6 +24,7 @@ fn records_a_tcp_source_losslessly() {
             sigma_pos_m: [1.0; 3],
             sigma_vel_mps: [0.1; 3],
             sigma_att_rad: [0.01; 3],
+            cov_ne_m2: 0.0,
         };
         bytes.extend_from_slice(encode(&Uplink::Nav(nav), &mut buf).unwrap());
     }

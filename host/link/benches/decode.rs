@@ -25,6 +25,7 @@ fn message(i: usize) -> Uplink {
             sigma_pos_m: [0.5; 3],
             sigma_vel_mps: [0.05; 3],
             sigma_att_rad: [0.01; 3],
+            cov_ne_m2: 0.0,
         }),
         1 => Uplink::Health(FilterHealth {
             t_us,

@@ -36,6 +36,7 @@ fn message(r: &mut Rng) -> Uplink {
             sigma_pos_m: [r.f(); 3],
             sigma_vel_mps: [r.f(); 3],
             sigma_att_rad: [r.f(); 3],
+            cov_ne_m2: 0.0,
         }),
         1 => Uplink::Health(FilterHealth {
             t_us,

@@ -84,9 +84,22 @@ pub struct ErrorStats {
     pub within_3sigma: [f64; 4],
 }
 
+/// A loop closure the head accepted: where the map put the vehicle at that instant and where
+/// the head's estimate was.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ClosurePoint {
+    pub t_s: f64,
+    /// The recognised node (north, east).
+    pub node_ne_m: [f64; 2],
+    pub estimate_ne_m: [f64; 2],
+}
+
 /// The data of a report.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct ReportData {
+    /// The topological map's nodes (north, east), when the map ran in the loop.
+    pub map_nodes: Vec<[f64; 2]>,
+    pub closures: Vec<ClosurePoint>,
     pub nav: Vec<NavPoint>,
     pub truth: Vec<TruthRow>,
     pub errors: Vec<ErrPoint>,

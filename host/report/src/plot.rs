@@ -21,7 +21,11 @@ type Draw = fn(&ReportData, &Path) -> Result<bool>;
 
 /// (file stem, caption, drawing function); a function returns false when it has nothing to draw.
 pub const FIGURES: [(&str, &str, Draw); 5] = [
-    ("trajectory", "Horizontal track, north up: estimate (blue) and truth (black).", trajectory),
+    (
+        "trajectory",
+        "Horizontal track, north up: estimate (blue) and truth (black); with the map in the loop, its nodes (grey) and the loop closures the head accepted (red: from the head's estimate at the image's time to the node it recognised).",
+        trajectory,
+    ),
     ("heading", "Heading estimate and truth (top); heading error with its 3-sigma bound (bottom, when truth exists).", heading),
     ("position_error", "Position error per NED axis with the 3-sigma bounds (3-sigma alone without truth).", position_error),
     ("health", "Filter health: fading factor lambda, NIS per update kind, process (Q) and measurement (R) noise diagonals.", health),
@@ -194,6 +198,26 @@ fn trajectory(d: &ReportData, path: &Path) -> Result<bool> {
         let s = c.draw_series(LineSeries::new(d.nav.iter().map(|p| (p.pos_ned_m[1], p.pos_ned_m[0])), EST.stroke_width(2))).map_err(err)?;
         if text {
             s.label("estimate").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], EST.stroke_width(2)));
+        }
+        if !d.map_nodes.is_empty() {
+            let node = RGBColor(120, 120, 120);
+            let s = c.draw_series(d.map_nodes.iter().map(|n| Circle::new((n[1], n[0]), 3, node.filled()))).map_err(err)?;
+            if text {
+                s.label(format!("map nodes ({})", d.map_nodes.len())).legend(move |(x, y)| Circle::new((x + 8, y), 3, node.filled()));
+            }
+        }
+        if !d.closures.is_empty() {
+            let red = RGBColor(220, 30, 30);
+            let s = c
+                .draw_series(d.closures.iter().map(|k| {
+                    PathElement::new(vec![(k.estimate_ne_m[1], k.estimate_ne_m[0]), (k.node_ne_m[1], k.node_ne_m[0])], red.stroke_width(2))
+                }))
+                .map_err(err)?;
+            if text {
+                s.label(format!("accepted loop closures ({})", d.closures.len()))
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], red.stroke_width(2)));
+            }
+            c.draw_series(d.closures.iter().map(|k| Circle::new((k.node_ne_m[1], k.node_ne_m[0]), 3, red.filled()))).map_err(err)?;
         }
         if let (Some(a), Some(z)) = (d.nav.first(), d.nav.last()) {
             c.draw_series([

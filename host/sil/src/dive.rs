@@ -55,6 +55,9 @@ pub struct DiveResult {
     pub faults: Vec<(String, String, u32)>,
     pub corrupt_frames: u64,
     pub bus_transactions: u64,
+    /// The map in the loop (scenarios with a camera).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub map: Option<crate::map_loop::MapLoopReport>,
 }
 
 /// Yaw 1-sigma (deg) below which the heading counts as converged in [`DiveResult`].
@@ -64,6 +67,36 @@ fn wrap_deg(x: f64) -> f64 {
     (x + 180.0).rem_euclid(360.0) - 180.0
 }
 
+/// What a live display shows during a run (from the latest navigation solution).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LiveStatus {
+    pub t_s: f64,
+    pub mode: NavMode,
+    pub sigma_heading_deg: f64,
+    /// Horizontal position 1-sigma (root of the N and E variances' sum), m.
+    pub sigma_horizontal_m: f64,
+    /// Map fixes sent and accepted by the head, and the map's nodes (0 without a camera).
+    pub fixes_sent: u64,
+    pub fixes_accepted: u64,
+    pub map_nodes: usize,
+}
+
+impl LiveStatus {
+    pub fn new(n: &subnav_wire::NavSolution, map: Option<&crate::map_loop::MapLoop>) -> Self {
+        let (fixes_sent, fixes_accepted, map_nodes) = map.map_or((0, 0, 0), |m| m.counts());
+        let [sn, se, _] = n.sigma_pos_m.map(f64::from);
+        LiveStatus {
+            t_s: n.t_us as f64 * 1e-6,
+            mode: n.mode,
+            sigma_heading_deg: f64::from(n.sigma_att_rad[2]).to_degrees(),
+            sigma_horizontal_m: (sn * sn + se * se).sqrt(),
+            fixes_sent,
+            fixes_accepted,
+            map_nodes,
+        }
+    }
+}
+
 /// How to run a dive.
 #[derive(Default)]
 pub struct DiveOptions<'a> {
@@ -71,8 +104,8 @@ pub struct DiveOptions<'a> {
     pub record: Option<&'a Path>,
     /// Wall-clock limit (QEMU); default 15 minutes.
     pub timeout: Option<Duration>,
-    /// Called with the firmware time (s) of every navigation message (progress display).
-    pub progress: Option<&'a dyn Fn(f64)>,
+    /// Called with every navigation message's status (progress display).
+    pub progress: Option<&'a dyn Fn(&LiveStatus)>,
 }
 
 /// Run `sc` with the QEMU firmware `elf`.
@@ -93,10 +126,15 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
             }
         }) as crate::chips::modem::DeliveryTap
     });
-    let result = run_with_bus(&cfg, Box::new(SimHead::with_downlink_tap(sc, tap)), |e, _down| {
+    let map = sc.map_loop();
+    let head = SimHead::build(sc, tap, map.clone());
+    let result = run_with_bus(&cfg, Box::new(head), |e, _down| {
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
+            if let Some(map) = &map {
+                map.on_uplink(&m);
+            }
             if let (Uplink::Nav(n), Some(p)) = (&m, opts.progress) {
-                p(n.t_us as f64 * 1e-6);
+                p(&LiveStatus::new(n, map.as_ref()));
             }
             msgs.push(m);
         }
@@ -108,11 +146,16 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     if let Some(r) = recorder {
         r.finish()?;
     }
+    if let Some(m) = &map {
+        m.close();
+    }
     let outcome = result?;
     if outcome.timed_out {
         anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
     }
-    Ok(evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions))
+    let mut r = evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions);
+    r.map = map.map(|m| m.report());
+    Ok(r)
 }
 
 /// The truth of a dive as CSV (`t_s,n_m,e_m,d_m,yaw_rad`, the format `subnav report --truth`
@@ -158,6 +201,7 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         faults: Vec::new(),
         corrupt_frames,
         bus_transactions,
+        map: None,
     };
     let (mut sh, mut sp, mut sd, mut inside) = (0.0, 0.0, 0.0, 0usize);
     let (mut sh_conv, mut n_conv, mut h_inside) = (0.0, 0usize, 0usize);

@@ -8,7 +8,8 @@
 //! 0x48..0x4B (polarization unit u on 0x48 + u) and MS5837-30BA at 0x76; UART 0 = DVL-A50
 //! (bottom track over a flat seafloor, water track without lock, the scenario's faults, scale
 //! and misalignment drawn per seed); UART 1 = the modem that delivers the host's position
-//! fixes at their arrival time (validity time + the scenario's latency).
+//! fixes at their arrival time (validity time + the scenario's latency) and the map's fixes;
+//! GPIO 0 = the camera's trigger line (scenarios with a camera: `crate::map_loop`).
 
 use std::sync::Arc;
 
@@ -21,6 +22,7 @@ use subnav_core::ephemeris::{self, Atmosphere, Observer};
 use subnav_core::head;
 use subnav_wire::bridge::{BusRequest, BusResponse};
 
+use crate::chips::camera::{CameraFaults, CameraImage, CameraModel};
 use crate::chips::dvl_a50::{DvlA50Model, DvlFaults, DvlGrade, DvlInput, DvlMountingModel};
 use crate::chips::modem::{DeliveryTap, ModemModel};
 use crate::chips::{Ads1115Model, ChipSet, Icm42688Model, ImuInput, Ms5837Model, PressureInput};
@@ -120,6 +122,61 @@ impl Default for DvlPlan {
     }
 }
 
+/// The downward camera and the host's topological map in the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CameraPlan {
+    /// Send the map's fixes to the head (false: the map runs, its fixes are counted, not sent).
+    pub map_fixes: bool,
+    /// From exposure to the fix's arrival at the head, s.
+    pub latency_s: f64,
+    /// Frames exposed in this window are dark (s since boot).
+    #[serde(default)]
+    pub blackout_s: Option<(f64, f64)>,
+    #[serde(default)]
+    pub drop_probability: f64,
+    #[serde(default)]
+    pub duplicate_probability: f64,
+    #[serde(default)]
+    pub reorder_probability: f64,
+    /// With this probability a frame shows a place `far_image_offset_m` north-east of the
+    /// vehicle (a false appearance match the map's position gate must refuse).
+    #[serde(default)]
+    pub far_image_probability: f64,
+    #[serde(default = "default_far_offset")]
+    pub far_image_offset_m: f64,
+}
+
+fn default_far_offset() -> f64 {
+    40.0
+}
+
+impl Default for CameraPlan {
+    fn default() -> Self {
+        Self {
+            map_fixes: true,
+            latency_s: 0.5,
+            blackout_s: None,
+            drop_probability: 0.0,
+            duplicate_probability: 0.0,
+            reorder_probability: 0.0,
+            far_image_probability: 0.0,
+            far_image_offset_m: default_far_offset(),
+        }
+    }
+}
+
+impl CameraPlan {
+    /// The map loop's configuration for this plan.
+    pub fn loop_config(&self) -> crate::map_loop::MapLoopConfig {
+        crate::map_loop::MapLoopConfig {
+            send_fixes: self.map_fixes,
+            latency_us: (self.latency_s.max(0.0) * 1e6).round() as u64,
+            live: subnav_topo::live::LiveConfig::default(),
+            nav_wait: std::time::Duration::from_secs(30),
+        }
+    }
+}
+
 fn default_dvl() -> Option<DvlPlan> {
     Some(DvlPlan::default())
 }
@@ -152,6 +209,9 @@ pub struct Scenario {
     /// free-inertial and drifts like any MEMS INS: hundreds of metres in five minutes).
     #[serde(default = "default_dvl")]
     pub dvl: Option<DvlPlan>,
+    /// The camera and the map (None: no camera).
+    #[serde(default)]
+    pub camera: Option<CameraPlan>,
 }
 
 impl Default for Scenario {
@@ -170,11 +230,38 @@ impl Default for Scenario {
             faults: FaultPlan::default(),
             position_fixes: Some(FixPlan { period_s: 5.0, sigma_m: 2.0, latency_s: 1.0, as_if_current: false }),
             dvl: default_dvl(),
+            camera: None,
         }
     }
 }
 
+/// Seafloor depth without a DVL plan (m): the camera still needs a floor to look at.
+pub const DEFAULT_SEAFLOOR_DEPTH_M: f64 = 14.0;
+
 impl Scenario {
+    /// The main job: a 30-minute survey at 10 m depth and 1 m/s over a seafloor 4 m below, in a
+    /// cross-hatch that keeps crossing its own track, with IMU, compass, depth, DVL, camera and
+    /// map in the loop and no USBL.
+    pub fn map_survey(seed: u64) -> Self {
+        let mut sc =
+            Scenario { seed, duration_s: 1800.0, position_fixes: None, camera: Some(CameraPlan::default()), ..Scenario::default() };
+        sc.survey = Lawnmower { leg_m: 60.0, spacing_m: 15.0, cross_legs: 5, ..Lawnmower::default() };
+        if let Some(d) = sc.dvl.as_mut() {
+            d.seafloor_depth_m = DEFAULT_SEAFLOOR_DEPTH_M;
+        }
+        sc
+    }
+
+    /// Depth of the (flat) seafloor, m.
+    pub fn seafloor_depth_m(&self) -> f64 {
+        self.dvl.map_or(DEFAULT_SEAFLOOR_DEPTH_M, |d| d.seafloor_depth_m)
+    }
+
+    /// The map loop of this scenario (None without a camera).
+    pub fn map_loop(&self) -> Option<crate::map_loop::MapLoop> {
+        self.camera.map(|c| crate::map_loop::MapLoop::new(c.loop_config()))
+    }
+
     pub fn trajectory(&self) -> Trajectory {
         Trajectory::lawnmower(&self.survey, self.duration_s + 60.0)
     }
@@ -418,6 +505,42 @@ pub fn dvl_model(sc: &Scenario, plan: DvlPlan, traj: Arc<Trajectory>) -> DvlA50M
     dvl
 }
 
+/// The camera of a scenario: the seafloor of `subnav_topo::scene` (texture seeded by the
+/// scenario, coastal water, the sun of mid-dive) rendered at the truth pose of each trigger and
+/// reduced to its features; dark (no features) while the vehicle is shallower than half the
+/// survey depth (the floor out of sight).
+pub fn camera_model(sc: &Scenario, plan: CameraPlan, traj: Arc<Trajectory>, deliver: crate::chips::camera::Delivery) -> CameraModel {
+    use subnav_topo::polar_image::{demosaic, features, stokes};
+    use subnav_topo::scene::{Scene, SceneConfig, coastal_water};
+    let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0x9999);
+    let cfg = SceneConfig { floor_depth_m: sc.seafloor_depth_m(), seed: sc.seed, ..SceneConfig::default() };
+    let depth = sc.survey.depth_m;
+    let scene = Scene::new(cfg, coastal_water(), sc.sun_ned(0.5 * sc.duration_s), depth, &mut rng);
+    let far = (plan.far_image_probability, plan.far_image_offset_m);
+    let expose = Box::new(move |t_us: u64| {
+        let truth = traj.at(t_us as f64 * 1e-6);
+        let (n, e) = (truth.pos_ned_m.x, truth.pos_ned_m.y);
+        let truth_ne_m = [n, e];
+        if truth.pos_ned_m.z < 0.5 * depth {
+            return CameraImage { features: None, truth_ne_m };
+        }
+        use rand::Rng as _;
+        let off = if rng.random::<f64>() < far.0 { far.1 / std::f64::consts::SQRT_2 } else { 0.0 };
+        let mosaic = scene.render(n + off, e + off, truth.yaw_rad, &mut rng);
+        let f = features(&stokes(&demosaic(&mosaic)));
+        CameraImage { features: f.iter().all(|v| v.is_finite()).then_some(f), truth_ne_m }
+    });
+    let mut cam = CameraModel::new(sc.seed ^ 0x8888, expose, deliver);
+    let window = |(a, b): (f64, f64)| ((a * 1e6) as u64, (b * 1e6) as u64);
+    cam.faults = CameraFaults {
+        blackout_us: plan.blackout_s.map(window),
+        drop_probability: plan.drop_probability,
+        duplicate_probability: plan.duplicate_probability,
+        reorder_probability: plan.reorder_probability,
+    };
+    cam
+}
+
 impl SimHead {
     pub fn new(sc: &Scenario) -> Self {
         Self::with_downlink_tap(sc, None)
@@ -425,6 +548,12 @@ impl SimHead {
 
     /// As [`SimHead::new`], with `tap` called for every downlink frame the modem delivers.
     pub fn with_downlink_tap(sc: &Scenario, tap: Option<DeliveryTap>) -> Self {
+        Self::build(sc, tap, None)
+    }
+
+    /// As [`SimHead::with_downlink_tap`], with the camera feeding `map` and the map's fixes
+    /// going to the head over the modem link (when the scenario has a camera).
+    pub fn build(sc: &Scenario, tap: Option<DeliveryTap>, map: Option<crate::map_loop::MapLoop>) -> Self {
         let traj = Arc::new(sc.trajectory());
         let mut chips = ChipSet::new();
 
@@ -483,7 +612,14 @@ impl SimHead {
         if let Some(plan) = sc.dvl {
             chips.attach_uart(0, dvl_model(sc, plan, traj.clone()));
         }
-        chips.attach_uart(1, ModemModel::new(fix_frames(sc), tap));
+        let mut modem = ModemModel::new(fix_frames(sc), tap);
+        if let (Some(plan), Some(map)) = (sc.camera, map) {
+            let sink = map.clone();
+            let camera = camera_model(sc, plan, traj.clone(), Box::new(move |cap| sink.on_capture(cap)));
+            chips.attach_gpio(0, camera);
+            modem = modem.with_live_source(Box::new(move |t_us| map.poll(t_us)));
+        }
+        chips.attach_uart(1, modem);
         SimHead { chips }
     }
 }

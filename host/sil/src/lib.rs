@@ -5,7 +5,8 @@ pub mod chips;
 pub mod dive;
 pub mod filter;
 pub mod head;
+pub mod map_loop;
 pub mod replay;
 pub mod sil;
 
-pub use head::{DvlPlan, FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};
+pub use head::{CameraPlan, DvlPlan, FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};

@@ -501,6 +501,11 @@ impl SensorSuite for Suite<'_, '_> {
             _ => Err(st.fault_for(FaultSource::Depth)),
         }
     }
+    fn trigger_camera(&mut self, t_us: u64) -> Result<bool, SensorFault> {
+        // The recorded head had a camera when it announced a frame at this tick.
+        let st = self.0.borrow();
+        Ok(matches!(st.peek(), Some(Uplink::Trigger(t)) if t.t_us == t_us))
+    }
     fn poll_dvl(&mut self, t_us: u64) -> Result<Option<DvlSample>, SensorFault> {
         // A report completed at this tick; sentences the firmware refused (malformed, bad
         // checksum) never reached the estimator and are not replayed (their faults match loosely).

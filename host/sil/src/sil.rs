@@ -16,13 +16,14 @@ use embedded_io::Read as _;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
 use subnav_firmware::app::SERIAL_POLL_US;
-use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, BridgeUart, ByteLink};
+use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
 use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
 
-use super::dive::{DiveResult, evaluate};
+use super::dive::{DiveResult, LiveStatus, evaluate};
 use super::head::{Scenario, SimHead};
+use super::map_loop::{MapLoop, MapLoopReport};
 use super::replay::boot_commands;
 use subnav_link::qemu::BusHandler;
 
@@ -56,6 +57,8 @@ impl ByteLink for InProcessLink {
 
 /// Telemetry decoded as it is written (and kept as frames, stamped with firmware time).
 struct Collect {
+    map: Option<MapLoop>,
+    last_nav: Option<subnav_wire::NavSolution>,
     dec: FrameDecoder<MAX_UPLINK_FRAME>,
     msgs: Vec<Uplink>,
     corrupt: u64,
@@ -68,7 +71,15 @@ impl TelemetrySink for Collect {
         self.frames.push((self.now_us, frame.to_vec()));
         for &b in frame {
             match self.dec.push::<Uplink>(b) {
-                Decoded::Message(m) => self.msgs.push(m),
+                Decoded::Message(m) => {
+                    if let Uplink::Nav(n) = &m {
+                        self.last_nav = Some(*n);
+                    }
+                    if let Some(map) = &self.map {
+                        map.on_uplink(&m);
+                    }
+                    self.msgs.push(m)
+                }
                 Decoded::Corrupt(_) => self.corrupt += 1,
                 Decoded::Pending => {}
             }
@@ -86,11 +97,15 @@ pub struct NativeRun {
     pub downlink: Vec<(u64, Vec<u8>)>,
     pub corrupt_frames: u64,
     pub bus_transactions: u64,
+    /// The map in the loop (scenarios with a camera).
+    pub map: Option<MapLoopReport>,
 }
 
 /// Run the scenario natively for `sc.duration_s` and return the telemetry.
-pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
-    let mut sink = Collect { dec: FrameDecoder::new(), msgs: Vec::new(), corrupt: 0, now_us: 0, frames: Vec::new() };
+pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>) -> NativeRun {
+    let map = sc.map_loop();
+    let mut sink =
+        Collect { map: map.clone(), last_nav: None, dec: FrameDecoder::new(), msgs: Vec::new(), corrupt: 0, now_us: 0, frames: Vec::new() };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
     app.boot(0, &mut sink);
@@ -105,7 +120,7 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
         let d = delivered.clone();
         Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
     };
-    let head = SimHead::with_downlink_tap(sc, Some(tap));
+    let head = SimHead::build(sc, Some(tap), map.clone());
     let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;
@@ -116,15 +131,16 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
         BridgeI2c::new(&bridge, 0),
         Some(BridgeUart::new(&bridge, 0)),
         &mut delay,
-    );
+    )
+    .with_camera_trigger(BridgePin::new(&bridge, 0));
     let mut modem = BridgeUart::new(&bridge, 1);
     let mut rx = [0u8; 64];
     let end_ms = (sc.duration_s * 1000.0).round() as u64;
     for ms in 0..=end_ms {
         let t_us = ms * 1000;
         sink.now_us = t_us;
-        if let Some(p) = progress.filter(|_| ms % 1000 == 0) {
-            p(ms as f64 * 1e-3);
+        if let (Some(p), Some(n)) = (progress.filter(|_| ms % 1000 == 0), sink.last_nav.as_ref()) {
+            p(&LiveStatus::new(n, map.as_ref()));
         }
         bridge.borrow_mut().set_time(t_us);
         if t_us % SERIAL_POLL_US == 0 {
@@ -139,7 +155,11 @@ pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(f64)>) -> NativeRun {
     }
     let transactions = bridge.into_inner().link_mut().transactions;
     downlink.extend(delivered.lock().unwrap_or_else(|e| e.into_inner()).drain(..));
-    NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions }
+    let map = map.map(|m| {
+        m.close();
+        m.report()
+    });
+    NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions, map }
 }
 
 impl NativeRun {
@@ -169,5 +189,7 @@ impl NativeRun {
 /// process to fail; a panic would unwind through the caller).
 pub fn run_dive_native(sc: &Scenario) -> DiveResult {
     let run = run_native(sc, None);
-    evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
+    let mut r = evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
+    r.map = run.map;
+    r
 }

@@ -62,7 +62,8 @@ fn encode(m: &Uplink) -> Vec<u8> {
 fn write(dir: &Path, name: &str, frames: Vec<(u64, Vec<u8>)>) -> PathBuf {
     let (sc, run) = native();
     let p = dir.join(name);
-    let modified = NativeRun { messages: Vec::new(), frames, downlink: run.downlink.clone(), corrupt_frames: 0, bus_transactions: 0 };
+    let modified =
+        NativeRun { messages: Vec::new(), frames, downlink: run.downlink.clone(), corrupt_frames: 0, bus_transactions: 0, map: None };
     modified.write_recording(&p, sc).expect("writing the recording");
     p
 }

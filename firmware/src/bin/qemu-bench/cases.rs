@@ -28,6 +28,7 @@ fn wire_cases(b: &mut Bench) {
         sigma_pos_m: [0.5; 3],
         sigma_vel_mps: [0.05; 3],
         sigma_att_rad: [0.01; 3],
+        cov_ne_m2: 0.0,
     });
     let mut buf = [0u8; MAX_UPLINK_FRAME];
     b.run("wire.encode_nav_frame", 1000, || wire::encode(black_box(&nav), &mut buf).map(|f| f.len()).unwrap_or(0));

@@ -42,7 +42,7 @@ impl ByteLink for PipeLink {
 }
 
 use subnav_firmware::app::SERIAL_POLL_US;
-use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgeSpi, BridgeUart, ByteLink};
+use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
@@ -202,7 +202,8 @@ fn main() -> ! {
             BridgeI2c::new(&bridge, 0),
             Some(BridgeUart::new(&bridge, 0)),
             &mut delay,
-        );
+        )
+        .with_camera_trigger(BridgePin::new(&bridge, 0));
         defmt::info!(
             "sensor init: imu {=?} polarization {=?} depth {=?}",
             suite.init.imu.is_none(),

@@ -53,6 +53,7 @@ pub fn text(m: &Uplink) -> String {
             d.fom_mps,
             d.altitude_m
         ),
+        Uplink::Trigger(t) => format!("camera  t={} frame={}", secs(t.t_us), t.frame),
         Uplink::Compass(c) => format!(
             "compass t={} heading_deg={} sigma_deg={:.3} units={} no_fix_reason={}",
             secs(c.t_us),

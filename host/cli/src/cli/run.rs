@@ -2,6 +2,11 @@
 //! QEMU (`--elf`, the reference: the board binary with its buses bridged to the simulated chips)
 //! or natively (`--native`: the same application core compiled for the host, ~20x faster);
 //! record the telemetry and the truth, and print heading and position error statistics.
+//!
+//! Without a scenario file it runs the main job: [`Scenario::map_survey`], a 30-minute
+//! cross-hatch survey with the camera and the topological map in the loop and no USBL.
+//! `--report DIR` writes the recording, the truth and the report (HTML + PNGs, the map's
+//! nodes and the loop closures the head accepted on the trajectory) into DIR.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -12,13 +17,27 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::Format;
 use subnav_sil::Scenario;
-use subnav_sil::dive::{DiveOptions, DiveResult, evaluate, run_dive, truth_csv};
+use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_csv};
 use subnav_sil::sil::run_native;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Scenario JSON (`subnav sim --out`).
-    pub scenario: PathBuf,
+    /// Scenario JSON (`subnav sim --out`); default: the main job (`Scenario::map_survey`: a
+    /// 30-minute cross-hatch survey, camera and map in the loop, no USBL).
+    pub scenario: Option<PathBuf>,
+    /// Seed of the default scenario (with a scenario file: replaces its seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Replace the scenario's length, s.
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Run the map open loop: it builds the map and counts its fixes without sending them.
+    #[arg(long)]
+    pub no_map_fixes: bool,
+    /// Write the recording (unless --record says where), the truth and the report into this
+    /// directory.
+    #[arg(long, conflicts_with = "seeds")]
+    pub report: Option<PathBuf>,
     /// The QEMU board firmware ELF (`cargo xtask build` puts it in target/firmware/subnav-qemu.elf).
     #[arg(long, required_unless_present = "native", conflicts_with = "native")]
     pub elf: Option<PathBuf>,
@@ -43,35 +62,75 @@ pub struct Args {
     pub seeds: Option<super::args::Seeds>,
 }
 
-fn load(path: &PathBuf) -> Result<Scenario> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading the scenario {}", path.display()))?;
-    let sc: Scenario = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a scenario (write one with `subnav sim --out {}`)", path.display(), path.display()))?;
-    sc.validate().with_context(|| format!("the scenario {}", path.display()))?;
+fn load(args: &Args) -> Result<Scenario> {
+    let (mut sc, name) = match &args.scenario {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| format!("reading the scenario {}", path.display()))?;
+            let sc: Scenario = serde_json::from_str(&text)
+                .with_context(|| format!("{} is not a scenario (write one with `subnav sim --out {}`)", path.display(), path.display()))?;
+            (sc, path.display().to_string())
+        }
+        None => (Scenario::map_survey(args.seed.unwrap_or(1)), "the default scenario".to_string()),
+    };
+    if let Some(seed) = args.seed {
+        sc.seed = seed;
+    }
+    if let Some(d) = args.duration_s {
+        if !(d > 0.0 && d <= 86_400.0) {
+            bail!("--duration-s {d}: must be in (0, 86400] s");
+        }
+        sc.duration_s = d;
+    }
+    if args.no_map_fixes {
+        match sc.camera.as_mut() {
+            Some(c) => c.map_fixes = false,
+            None => bail!("--no-map-fixes: {name} has no camera (write one with `subnav sim --camera`)"),
+        }
+    }
+    sc.validate().with_context(|| format!("the scenario {name}"))?;
     Ok(sc)
+}
+
+/// The map columns of a run (dashes without a camera).
+fn map_cells(r: &DiveResult) -> String {
+    match &r.map {
+        Some(m) => format!(
+            "{:>5}  {:>5}/{:<5}  {:>9.3}  {:>6.3}",
+            m.mapper.nodes,
+            m.fixes_accepted,
+            m.fixes_sent,
+            m.mapper.precision.unwrap_or(f64::NAN),
+            m.mapper.recall.unwrap_or(f64::NAN)
+        ),
+        None => format!("{:>5}  {:>11}  {:>9}  {:>6}", "-", "-", "-", "-"),
+    }
 }
 
 /// `--seeds`: one native run per seed, a line each, then the means.
 fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Result<ExitCode> {
     let mut rows = Vec::new();
     if format == Format::Text {
-        println!("seed  horiz RMS m  final m  max m  final % dist  within 3 sigma %  heading RMSE deg");
+        println!(
+            "seed  horiz RMS m  final m  max m  final % dist  within 3 sigma %  heading RMSE deg  nodes  fixes ok/sent  precision  recall"
+        );
     }
     let mut ok = true;
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
         let run = run_native(&sc, None);
-        let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
+        let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
+        r.map = run.map;
         ok &= r.nonfinite_values == 0;
         if format == Format::Text {
             println!(
-                "{seed:>4}  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}",
+                "{seed:>4}  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}  {}",
                 r.horizontal_rms_err_m,
                 r.horizontal_final_err_m,
                 r.horizontal_max_err_m,
                 r.final_err_pct_of_distance,
                 100.0 * r.within_3_sigma,
-                r.heading_rmse_deg
+                r.heading_rmse_deg,
+                map_cells(&r)
             );
         }
         rows.push((seed, r));
@@ -108,44 +167,72 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    let inputs: Vec<&std::path::Path> = std::iter::once(args.scenario.as_path()).chain(args.elf.as_deref()).collect();
+    let inputs: Vec<&std::path::Path> = args.scenario.as_deref().into_iter().chain(args.elf.as_deref()).collect();
     for (flag, out) in [("--record", &args.record), ("--truth", &args.truth)] {
         if let Some(p) = out {
             subnav_link::output::refuse_input_as_output(flag, p, &inputs)?;
         }
     }
-    let sc = load(&args.scenario)?;
+    let sc = load(&args)?;
     if let Some(seeds) = &args.seeds {
         return run_seeds(&sc, seeds, format);
     }
+    let record = match (&args.record, &args.report) {
+        (Some(p), _) => Some(p.clone()),
+        (None, Some(dir)) => {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating the report directory {}", dir.display()))?;
+            Some(dir.join("dive.snrec"))
+        }
+        (None, None) => None,
+    };
     let pb = if args.quiet || format == Format::Json { ProgressBar::hidden() } else { ProgressBar::new(sc.duration_s.ceil() as u64) };
-    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} s ({eta})") {
+    if let Ok(style) = ProgressStyle::with_template("[{bar:30}] {pos}/{len} s ({eta})  {msg}") {
         pb.set_style(style.progress_chars("=> "));
     }
-    pb.set_message(if args.native { "native dive" } else { "QEMU dive" });
-    let progress = |t: f64| pb.set_position(t as u64);
+    let kind = if args.native { "native" } else { "QEMU" };
+    pb.set_message(format!("{kind} dive starting"));
+    let progress = |s: &LiveStatus| {
+        pb.set_position(s.t_s as u64);
+        let map = if sc.camera.is_some() {
+            format!("  map {} nodes, fixes {}/{} accepted", s.map_nodes, s.fixes_accepted, s.fixes_sent)
+        } else {
+            String::new()
+        };
+        pb.set_message(format!(
+            "{kind} {:?}: heading sigma {:.2} deg, position sigma {:.2} m{map}",
+            s.mode, s.sigma_heading_deg, s.sigma_horizontal_m
+        ));
+    };
     let result: DiveResult = if args.native {
         let run = run_native(&sc, Some(&progress));
-        if let Some(p) = &args.record {
+        if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;
         }
-        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
+        let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
+        r.map = run.map;
+        r
     } else {
         let elf = args.elf.as_ref().context("--elf is required without --native")?;
         if !elf.exists() {
             bail!("{} does not exist: build it with `cargo xtask build` (or use --native)", elf.display());
         }
-        let opts =
-            DiveOptions { record: args.record.as_deref(), timeout: Some(Duration::from_secs(args.timeout_s)), progress: Some(&progress) };
+        let opts = DiveOptions { record: record.as_deref(), timeout: Some(Duration::from_secs(args.timeout_s)), progress: Some(&progress) };
         run_dive(elf, &sc, &opts)?
     };
     pb.finish_and_clear();
-    if let Some(p) = &args.truth {
+    let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
+    if let Some(p) = &truth_path {
         std::fs::write(p, truth_csv(&sc, 0.1)).with_context(|| format!("writing the truth {}", p.display()))?;
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&result)?),
         Format::Text => print_summary(&result),
+    }
+    if let (Some(dir), Some(rec)) = (&args.report, &record) {
+        let html = write_report(dir, rec, &sc, &result)?;
+        if format == Format::Text {
+            println!("report                {}", html.display());
+        }
     }
     let ok = result.exit_code == Some(0) && result.nonfinite_values == 0;
     if !ok {
@@ -155,6 +242,31 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         );
     }
     Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+/// The report of a run: its recording with the truth, and the map's nodes and the closures the
+/// head accepted. Returns the HTML page.
+fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: &DiveResult) -> Result<PathBuf> {
+    let (session, _note) = super::export::load_session(rec, None)?;
+    let (truth, _) = subnav_link::record::session::parse_truth_csv(&truth_csv(sc, 0.1));
+    let mut data = subnav_report::ReportData::from_session(&session, Some(truth));
+    if let Some(m) = &r.map {
+        data.map_nodes = m.nodes.iter().map(|n| n.pos_ned_m).collect();
+        let accepted: std::collections::BTreeSet<u64> = m.fix_results.iter().filter(|(_, ok)| *ok).map(|(t, _)| *t).collect();
+        // A closure links the head's estimate at the image's time to the node it recognised.
+        data.closures = m
+            .closures
+            .iter()
+            .filter(|c| accepted.contains(&c.t_us))
+            .filter_map(|c| {
+                let node = m.nodes.iter().find(|n| n.id == c.node)?;
+                Some(subnav_report::ClosurePoint { t_s: c.t_us as f64 * 1e-6, node_ne_m: node.pos_ned_m, estimate_ne_m: c.vehicle_ne_m })
+            })
+            .collect();
+    }
+    let title = format!("subnav dive, seed {}", sc.seed);
+    let written = subnav_report::write(&data, dir, subnav_report::ImageFormat::Png, &title, |_| {})?;
+    Ok(written.html)
 }
 
 fn print_summary(r: &DiveResult) {
@@ -181,5 +293,21 @@ fn print_summary(r: &DiveResult) {
     println!("bus transactions      {}  corrupt frames {}  non-finite values {}", r.bus_transactions, r.corrupt_frames, r.nonfinite_values);
     for (source, kind, count) in &r.faults {
         println!("fault                 {source} {kind} x{count}");
+    }
+    if let Some(m) = &r.map {
+        let s = &m.mapper;
+        println!(
+            "map                   {} nodes; {} frames, recognitions {} (precision {:.3}, recall {:.3}), gate refused {}",
+            s.nodes,
+            s.frames,
+            s.recognitions,
+            s.precision.unwrap_or(f64::NAN),
+            s.recall.unwrap_or(f64::NAN),
+            s.gate_refusals
+        );
+        println!(
+            "map fixes             {} sent, {} accepted, {} refused by the head; frames without trigger {}, telemetry waits timed out {}",
+            m.fixes_sent, m.fixes_accepted, m.fixes_refused, m.captures_without_trigger, m.nav_wait_timeouts
+        );
     }
 }

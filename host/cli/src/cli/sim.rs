@@ -1,6 +1,6 @@
 //! `subnav sim`: write a dive scenario (JSON) for `subnav run`: a lawnmower survey at depth at a
 //! date and place, water clarity, sensor grades, the DVL (on by default) and its seafloor,
-//! position fixes with their latency, and injected faults.
+//! position fixes with their latency, the camera and the map in the loop, and injected faults.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 
 use super::{Format, args};
-use subnav_sil::{DvlPlan, FaultPlan, FixPlan, Scenario};
+use subnav_sil::{CameraPlan, DvlPlan, FaultPlan, FixPlan, Scenario};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -97,6 +97,34 @@ pub struct Args {
     /// Fault: probability that a depth-sensor transaction is NACKed.
     #[arg(long, default_value_t = 0.0)]
     pub depth_nack_probability: f64,
+    /// Cross-hatch survey: this many legs (made odd), a quarter turn, as many across the first
+    /// block, and so on, so the track keeps crossing itself (0: parallel legs).
+    #[arg(long, default_value_t = 0)]
+    pub cross_legs: u32,
+    /// The downward camera and the topological map in the loop (the map's fixes go to the head).
+    #[arg(long)]
+    pub camera: bool,
+    /// With --camera: the map runs but its fixes are not sent (open loop, for comparison).
+    #[arg(long, requires = "camera")]
+    pub no_map_fixes: bool,
+    /// With --camera: from exposure to the map fix's arrival at the head, s.
+    #[arg(long, default_value_t = 0.5, requires = "camera")]
+    pub camera_latency_s: f64,
+    /// Camera fault: dark frames from A to B s (`A,B`).
+    #[arg(long, value_name = "A,B", value_parser = args::parse_window, requires = "camera")]
+    pub camera_blackout: Option<args::Window>,
+    /// Camera fault: probability that a frame is dropped / delivered twice / delivered late
+    /// (after the next one).
+    #[arg(long, default_value_t = 0.0, requires = "camera")]
+    pub camera_drop_probability: f64,
+    #[arg(long, default_value_t = 0.0, requires = "camera")]
+    pub camera_duplicate_probability: f64,
+    #[arg(long, default_value_t = 0.0, requires = "camera")]
+    pub camera_reorder_probability: f64,
+    /// Camera fault: probability that a frame shows a place 40 m away (a false appearance match
+    /// the map's position gate must refuse).
+    #[arg(long, default_value_t = 0.0, requires = "camera")]
+    pub far_image_probability: f64,
 }
 
 /// The scenario the arguments describe (checked).
@@ -124,6 +152,12 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
         ((0.0..=1.0).contains(&a.dvl_dropout_probability), "--dvl-dropout-probability must be in [0, 1]"),
         ((0.0..=1.0).contains(&a.dvl_invalid_probability), "--dvl-invalid-probability must be in [0, 1]"),
         ((0.0..=1.0).contains(&a.dvl_corrupt_probability), "--dvl-corrupt-probability must be in [0, 1]"),
+        (a.cross_legs <= 1001, "--cross-legs must be at most 1001"),
+        ((0.0..=10.0).contains(&a.camera_latency_s), "--camera-latency-s must be in [0, 10]"),
+        ((0.0..=1.0).contains(&a.camera_drop_probability), "--camera-drop-probability must be in [0, 1]"),
+        ((0.0..=1.0).contains(&a.camera_duplicate_probability), "--camera-duplicate-probability must be in [0, 1]"),
+        ((0.0..=1.0).contains(&a.camera_reorder_probability), "--camera-reorder-probability must be in [0, 1]"),
+        ((0.0..=1.0).contains(&a.far_image_probability), "--far-image-probability must be in [0, 1]"),
     ];
     if let Some((_, msg)) = checks.iter().find(|(ok, _)| !ok) {
         bail!("{msg}");
@@ -132,6 +166,17 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
     sc.survey.speed_mps = a.speed_mps;
     sc.survey.leg_m = a.leg_m;
     sc.survey.spacing_m = a.spacing_m;
+    sc.survey.cross_legs = a.cross_legs;
+    sc.camera = a.camera.then_some(CameraPlan {
+        map_fixes: !a.no_map_fixes,
+        latency_s: a.camera_latency_s,
+        blackout_s: a.camera_blackout.map(|w| (w.start_s, w.end_s)),
+        drop_probability: a.camera_drop_probability,
+        duplicate_probability: a.camera_duplicate_probability,
+        reorder_probability: a.camera_reorder_probability,
+        far_image_probability: a.far_image_probability,
+        ..CameraPlan::default()
+    });
     if let Some(h) = a.heading_deg {
         if !h.is_finite() {
             bail!("--heading-deg must be finite");

@@ -31,7 +31,8 @@ fn tagged(variants: &[&str]) -> Value {
 }
 
 /// The uplink message kinds (as `Uplink::kind`) in export order.
-pub const KINDS: [&str; 10] = ["boot", "nav", "raw.imu", "raw.polarization", "raw.depth", "raw.dvl", "compass", "health", "fault", "ack"];
+pub const KINDS: [&str; 11] =
+    ["boot", "nav", "raw.imu", "raw.polarization", "raw.depth", "raw.dvl", "compass", "health", "fault", "ack", "camera.trigger"];
 
 /// Schema name and JSON Schema of a message kind.
 pub fn for_kind(kind: &str) -> Option<(String, Value)> {
@@ -58,6 +59,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("sigma_pos_m", arr(3)),
                 ("sigma_vel_mps", arr(3)),
                 ("sigma_att_rad", arr(3)),
+                ("cov_ne_m2", num()),
             ],
         ),
         "raw.imu" => obj("subnav.ImuSample", &[("t_us", t), ("gyro_radps", arr(3)), ("accel_mps2", arr(3)), ("temp_c", num())]),
@@ -110,7 +112,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             "subnav.Fault",
             &[
                 ("t_us", t),
-                ("source", tagged(&["Imu", "Depth", "Dvl", "Link", "Filter", "Scheduler", "Polarization"])),
+                ("source", tagged(&["Imu", "Depth", "Dvl", "Camera", "Link", "Filter", "Scheduler", "Polarization"])),
                 (
                     "kind",
                     tagged(&[
@@ -136,6 +138,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             ],
         ),
         "ack" => obj("subnav.CommandAck", &[("seq", int()), ("result", json!({"type": "object"}))]),
+        "camera.trigger" => obj("subnav.CameraTrigger", &[("t_us", t), ("frame", int())]),
         _ => return None,
     };
     let name = s["title"].as_str().unwrap_or(kind).to_string();
@@ -155,6 +158,7 @@ pub fn message_json(m: &Uplink, t_host_us: u64) -> Value {
         Uplink::Health(x) => serde_json::to_value(x),
         Uplink::Fault(x) => serde_json::to_value(x),
         Uplink::Ack(x) => serde_json::to_value(x),
+        Uplink::Trigger(x) => serde_json::to_value(x),
     };
     let mut v = inner.unwrap_or(Value::Null);
     if let Value::Object(o) = &mut v {

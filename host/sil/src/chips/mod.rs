@@ -13,6 +13,7 @@
 //! | [`ads1115::Ads1115Model`] | ADS1115 ADC | I2C 0x48..0x4B | volts on AIN0..AIN3 |
 //! | [`ms5837::Ms5837Model`] | MS5837-30BA | I2C 0x76 | [`ms5837::PressureInput`] (absolute Pa, deg C) |
 //! | [`dvl_a50::DvlA50Model`] | Water Linked DVL-A50 | UART 0 | [`dvl_a50::DvlInput`] (body velocity and rate, altitude, current) |
+//! | [`camera::CameraModel`] | downward polarization camera (IMX250MZR-class) | trigger on GPIO 0 | the rendered seafloor at the truth pose of each trigger |
 //! | [`modem::ModemModel`] | acoustic modem / USBL link delivering downlink frames | UART 1 | frames with their arrival times |
 //!
 //! Time: every call carries `t_us`, the firmware's timestamp of the transaction (the bridge's
@@ -38,6 +39,7 @@
 //! ```
 
 pub mod ads1115;
+pub mod camera;
 pub mod dvl_a50;
 pub mod icm42688;
 pub mod modem;
@@ -62,6 +64,12 @@ pub trait UartChip: Send {
 }
 
 /// A chip on an I2C bus.
+/// A device on a digital line the firmware drives (e.g. a camera's trigger input).
+pub trait GpioChip: Send {
+    /// The line went to `high` at `t_us`.
+    fn set(&mut self, t_us: u64, high: bool);
+}
+
 pub trait I2cChip: Send {
     /// 7-bit address.
     fn address(&self) -> u8;
@@ -160,6 +168,7 @@ pub struct ChipSet {
     i2c: Vec<(u8, Box<dyn I2cChip>)>,
     spi: Vec<(u8, u8, Box<dyn SpiChip>)>,
     uart: Vec<(u8, Box<dyn UartChip>)>,
+    gpio: Vec<(u8, Box<dyn GpioChip>)>,
     /// Transactions served per kind: ok, failed.
     pub served: [u64; 2],
 }
@@ -184,6 +193,12 @@ impl ChipSet {
     /// Attach a serial instrument to UART `port`.
     pub fn attach_uart(&mut self, port: u8, chip: impl UartChip + 'static) -> &mut Self {
         self.uart.push((port, Box::new(chip)));
+        self
+    }
+
+    /// Attach a device to digital output `pin`.
+    pub fn attach_gpio(&mut self, pin: u8, chip: impl GpioChip + 'static) -> &mut Self {
+        self.gpio.push((pin, Box::new(chip)));
         self
     }
 
@@ -237,6 +252,17 @@ impl ChipSet {
                             }
                         }
                         Op::Transfer(_) => return Err(BusFault::Other),
+                    }
+                }
+                Ok(data)
+            }
+            Bus::Gpio { pin } => {
+                // Nothing attached: a line to nowhere, not a fault.
+                for op in ops {
+                    let Op::Write(level) = op else { return Err(BusFault::Other) };
+                    let high = level.as_slice().first().is_some_and(|&l| l != 0);
+                    for (_, chip) in self.gpio.iter_mut().filter(|(p, _)| *p == pin) {
+                        chip.set(t, high);
                     }
                 }
                 Ok(data)

@@ -15,11 +15,16 @@ use std::collections::VecDeque;
 /// a recording's downlink stream).
 pub type DeliveryTap = Box<dyn FnMut(u64, &[u8]) + Send>;
 
+/// Frames produced while the dive runs (e.g. by the host's map): called with the current time,
+/// returns the frames arriving now.
+pub type LiveSource = Box<dyn FnMut(u64) -> Vec<Vec<u8>> + Send>;
+
 /// Frames waiting for their arrival time, then their bytes.
 pub struct ModemModel {
     scheduled: VecDeque<(u64, Vec<u8>)>,
     ready: VecDeque<u8>,
     tap: Option<DeliveryTap>,
+    live: Option<LiveSource>,
     /// Frames delivered so far.
     pub delivered: u64,
 }
@@ -28,7 +33,13 @@ impl ModemModel {
     /// `frames`: (arrival time µs, encoded downlink frame), any order.
     pub fn new(mut frames: Vec<(u64, Vec<u8>)>, tap: Option<DeliveryTap>) -> Self {
         frames.sort_by_key(|(t, _)| *t);
-        Self { scheduled: frames.into(), ready: VecDeque::new(), tap, delivered: 0 }
+        Self { scheduled: frames.into(), ready: VecDeque::new(), tap, live: None, delivered: 0 }
+    }
+
+    /// Also deliver the frames `live` produces during the run.
+    pub fn with_live_source(mut self, live: LiveSource) -> Self {
+        self.live = Some(live);
+        self
     }
 
     fn advance(&mut self, t_us: u64) {
@@ -39,6 +50,15 @@ impl ModemModel {
             }
             self.ready.extend(frame);
             self.delivered += 1;
+        }
+        if let Some(live) = self.live.as_mut() {
+            for frame in live(t_us) {
+                if let Some(tap) = self.tap.as_mut() {
+                    tap(t_us, &frame);
+                }
+                self.ready.extend(frame);
+                self.delivered += 1;
+            }
         }
     }
 }
