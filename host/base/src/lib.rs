@@ -7,9 +7,11 @@
 //!   `subnav_core::head`).
 //! - [`so3`]: SO(3) helpers in f64 (exponential, logarithm, hat, Jacobians).
 //! - [`chi2`]: the chi-square CDF and quantile for the gates.
+//! - [`limits`]: size limits on what a file can make the host allocate (images, tables).
 //! - [`wrap_pi`]: the one angle wrap (re-exported from `subnav_core::ukf`).
 pub mod chi2;
 pub mod imu;
+pub mod limits;
 pub mod sky;
 pub mod so3;
 pub mod trajectory;

@@ -85,13 +85,16 @@ pub fn parse_nav(text: &str) -> Result<Vec<NavSample>> {
     Ok(out)
 }
 
+/// Longest slant range accepted, m (the deepest ocean is 11 km).
+pub const MAX_RANGE_M: f64 = 12_000.0;
+
 pub fn parse_soundings(text: &str) -> Result<Vec<Ping>> {
     let t = parse_table(text, "soundings CSV", &["t_s", "beam_angle_rad", "range_m"])?;
     let (it, ia, ir) = (t.col("t_s").unwrap_or(0), t.col("beam_angle_rad").unwrap_or(1), t.col("range_m").unwrap_or(2));
     let mut pings: Vec<Ping> = vec![];
     for (ln, r) in &t.rows {
-        if r[ir] < 0.0 {
-            bail!("soundings CSV line {ln}: negative range");
+        if !(0.0..=MAX_RANGE_M).contains(&r[ir]) {
+            bail!("soundings CSV line {ln}: range_m must be in 0..={MAX_RANGE_M} m, got {}", r[ir]);
         }
         let b = Beam { angle_rad: r[ia], range_m: r[ir] };
         match pings.last_mut() {

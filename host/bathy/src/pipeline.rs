@@ -105,6 +105,14 @@ pub fn validate(s: &Survey) -> Result<()> {
 
 pub fn run(survey: &Survey, cfg: &PipelineConfig) -> Result<PipelineOutput> {
     validate(survey)?;
+    // The grids cover the navigation plus the swath: bound their size before building any.
+    let (mut n_lo, mut n_hi, mut e_lo, mut e_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for n in &survey.nav {
+        (n_lo, n_hi, e_lo, e_hi) = (n_lo.min(n.north_m), n_hi.max(n.north_m), e_lo.min(n.east_m), e_hi.max(n.east_m));
+    }
+    let swath_m = survey.pings.iter().flat_map(|p| p.beams.iter().map(|b| b.range_m)).fold(0.0, f64::max);
+    subnav_base::limits::check_grid("the survey", n_hi - n_lo + 2.0 * swath_m, e_hi - e_lo + 2.0 * swath_m, cfg.grid_cell_m)
+        .map_err(anyhow::Error::msg)?;
     let t0 = Instant::now();
     let nav = &survey.nav;
     let pts = points::survey_points(survey, None);

@@ -128,12 +128,58 @@ impl Dataset {
         } else {
             Vec::new()
         };
-        let cam: StereoCamera = serde_json::from_str(&std::fs::read_to_string(dir.join("camera.json")).context("reading camera.json")?)
-            .context("camera.json")?;
+        let (cam_p, meta_p) = (dir.join("camera.json"), dir.join("meta.json"));
+        let cam: StereoCamera =
+            serde_json::from_str(&std::fs::read_to_string(&cam_p).with_context(|| format!("reading {}", cam_p.display()))?)
+                .with_context(|| format!("{} is not a stereo camera", cam_p.display()))?;
         let meta: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("meta.json")).context("reading meta.json")?).context("meta.json")?;
-        let still_s = meta.get("still_s").and_then(|v| v.as_f64()).context("meta.json: still_s missing")?;
-        Ok(Self { imu, frames, depth, sonar_frames: Vec::new(), sonar_velocity, truth, cam, still_s, frontend: None, stereo })
+            serde_json::from_str(&std::fs::read_to_string(&meta_p).with_context(|| format!("reading {}", meta_p.display()))?)
+                .with_context(|| format!("{} is not JSON", meta_p.display()))?;
+        let still_s = meta.get("still_s").and_then(|v| v.as_f64()).with_context(|| format!("{}: still_s missing", meta_p.display()))?;
+        let d = Self { imu, frames, depth, sonar_frames: Vec::new(), sonar_velocity, truth, cam, still_s, frontend: None, stereo };
+        d.validate().with_context(|| format!("the data set {}", dir.display()))?;
+        Ok(d)
+    }
+
+    /// Checks what the odometry relies on, each number against its range: a focal length,
+    /// baseline or pixel noise of 0 ("0 features used"), a camera rotation that is not one, no
+    /// feature tracks, a still period longer than the data or IMU samples closer than 10 us
+    /// ("0 poses", exit 0) are errors naming the file and the bound.
+    pub fn validate(&self) -> Result<()> {
+        let c = &self.cam;
+        let within = |what: &str, v: f64, lo: f64, hi: f64| -> Result<()> {
+            if !(v > lo && v <= hi) {
+                bail!("{what} must be > {lo} and <= {hi}, got {v}");
+            }
+            Ok(())
+        };
+        within("camera.json focal_px", c.focal_px, 0.0, 1e5)?;
+        within("camera.json baseline_m", c.baseline_m, 0.0, 10.0)?;
+        within("camera.json sigma_px", c.sigma_px, 0.0, 100.0)?;
+        within("camera.json width_px", c.width_px, 0.0, f64::from(subnav_base::limits::MAX_IMAGE_SIDE))?;
+        within("camera.json height_px", c.height_px, 0.0, f64::from(subnav_base::limits::MAX_IMAGE_SIDE))?;
+        let r = c.rot_bc;
+        let ortho = (r.transpose() * r - nalgebra::Matrix3::identity()).abs().max();
+        if !(ortho < 1e-6 && (r.determinant() - 1.0).abs() < 1e-6 && c.pos_bc_m.iter().all(|v| v.is_finite())) {
+            bail!(
+                "camera.json rot_bc must be a rotation (orthonormal, determinant 1) and pos_bc_m finite (R^T R - I off by {ortho:.2e}, det {:.6})",
+                r.determinant()
+            );
+        }
+        if self.imu.len() < 2 {
+            bail!("imu.csv has {} samples: at least 2 are needed", self.imu.len());
+        }
+        if let Some(w) = self.imu.windows(2).find(|w| w[1].t_s - w[0].t_s < 1e-5) {
+            bail!("imu.csv: samples at {} s and {} s are closer than 10 us (at most 100 kHz)", w[0].t_s, w[1].t_s);
+        }
+        if self.frames.is_empty() && self.stereo.is_empty() {
+            bail!("tracks.csv (or stereo.csv) has no feature observations");
+        }
+        let span = self.imu[self.imu.len() - 1].t_s - self.imu[0].t_s;
+        if !(self.still_s >= 0.0 && self.still_s < span) {
+            bail!("meta.json still_s must be in [0, {span}) s (the IMU's time span), got {}", self.still_s);
+        }
+        Ok(())
     }
 
     /// Run the image front end over the stereo pairs of `stereo.csv` (no-op without them): the
@@ -245,6 +291,8 @@ pub fn read_png_gray(path: &Path) -> Result<Gray> {
     let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND);
     let mut reader = decoder.read_info().with_context(|| format!("{} is not a readable PNG", path.display()))?;
+    let (w, h) = (reader.info().width, reader.info().height);
+    subnav_base::limits::check_image_size(&path.display().to_string(), w, h).map_err(anyhow::Error::msg)?;
     let mut buf = vec![0; reader.output_buffer_size()];
     let info = reader.next_frame(&mut buf).with_context(|| format!("decoding {}", path.display()))?;
     let (w, h) = (info.width as usize, info.height as usize);

@@ -1,7 +1,11 @@
 //! defmt log decoding against the firmware ELF (defmt-decoder), for the QEMU board's semihosting
 //! stream and for recorded RTT streams.
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
+
+/// Largest firmware ELF read for its defmt table (a header naming `/dev/zero` read until out of
+/// memory).
+pub const MAX_ELF_BYTES: u64 = 256 << 20;
 use defmt_decoder::{DecodeError, StreamDecoder, Table};
 use serde::Serialize;
 
@@ -35,9 +39,25 @@ impl DefmtTable {
         Ok(Self { table })
     }
 
+    /// The table of the ELF at `path`: a regular file of at most [`MAX_ELF_BYTES`] that starts
+    /// like an ELF; every error names the path.
     pub fn from_elf_path(path: &std::path::Path) -> Result<Self> {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        Self::from_elf(&bytes)
+        use std::io::Read;
+        let md = std::fs::metadata(path).with_context(|| format!("reading the firmware ELF {}", path.display()))?;
+        if !md.is_file() {
+            bail!("the firmware ELF {} is not a regular file", path.display());
+        }
+        if md.len() > MAX_ELF_BYTES {
+            bail!("the firmware ELF {} has {} bytes, more than the {MAX_ELF_BYTES} read for a defmt table", path.display(), md.len());
+        }
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_ELF_BYTES).read_to_end(&mut bytes))
+            .with_context(|| format!("reading the firmware ELF {}", path.display()))?;
+        if !bytes.starts_with(b"\x7fELF") {
+            bail!("{} is not an ELF file (no ELF magic): give the firmware ELF the defmt logs were built with", path.display());
+        }
+        Self::from_elf(&bytes).with_context(|| format!("the firmware ELF {}", path.display()))
     }
 
     pub fn stream(&self) -> LogStream<'_> {

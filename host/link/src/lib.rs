@@ -1,9 +1,10 @@
 //! The telemetry link on the host side: decoding the uplink byte stream ([`uplink`]), the defmt
 //! log stream ([`defmt_log`]), opening sources (file, TCP, serial: [`source`]) and running the
-//! firmware in QEMU ([`qemu`]).
+//! firmware in QEMU ([`qemu`]); output files written atomically ([`output`]).
 
 pub mod defmt_log;
 pub mod export;
+pub mod output;
 pub mod qemu;
 pub mod record;
 pub mod source;

@@ -88,3 +88,74 @@ fn huge_length_fields_do_not_allocate_or_panic() {
     let l = read_bytes(&b).unwrap();
     assert_eq!(l.chunks.len(), 49);
 }
+
+/// Issue 23: one flipped bit anywhere in the header (magic, version, length, metadata or CRC)
+/// costs only the header: every chunk after it is read, and the loss is reported.
+#[test]
+fn a_flipped_bit_in_the_header_costs_only_the_header() {
+    let (bytes, chunks) = sample();
+    let header_len = Reader::new(&bytes).unwrap().offset();
+    for bit in 0..header_len * 8 {
+        let mut b = bytes.clone();
+        b[bit / 8] ^= 1 << (bit % 8);
+        let l = read_bytes(&b).unwrap_or_else(|e| panic!("bit {bit}: {e}"));
+        assert_eq!(l.chunks, chunks, "bit {bit}");
+        assert!(l.header_error.is_some(), "bit {bit}");
+        assert_eq!(l.damage.len(), 1, "bit {bit}: {:?}", l.damage);
+        assert_eq!((l.damage[0].offset, l.damage[0].len), (MAGIC.len(), header_len - MAGIC.len()), "bit {bit}");
+        assert!(l.damage[0].reason.contains("header"), "{:?}", l.damage);
+    }
+    // Not a recording at all, or of a newer version: still refused.
+    assert_eq!(read_bytes(b"plain text, not a recording").err(), Some(RecordError::NotARecording));
+}
+
+/// The range CRC the resynchronisation uses equals the direct CRC on every range.
+#[test]
+fn range_crc_equals_the_direct_crc() {
+    use subnav_link::record::reader::RangeCrc;
+    let bytes: Vec<u8> = (0..3000u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
+    let t = RangeCrc::new(&bytes);
+    let crc = subnav_wire::frame::FRAME_CRC;
+    for (s, e) in [(0, 0), (0, 1), (0, 3000), (1, 2999), (255, 257), (256, 512), (700, 701), (13, 2048), (2999, 3000)] {
+        assert_eq!(t.crc(&bytes, s, e), crc.checksum(&bytes[s..e]), "{s}..{e}");
+    }
+}
+
+/// Issue 23: a file of fake chunk headers, each claiming about half a megabyte, made the
+/// resynchronisation quadratic (every candidate checksummed its claimed length: 1.3 MB took
+/// 41 s in a release build). It must read in linear time: well under a second here, with
+/// a bound loose enough for a loaded CI machine and a debug build.
+#[test]
+fn fake_chunk_headers_resync_in_linear_time() {
+    let mut w = Writer::new(Vec::new(), &Meta::new("test")).unwrap();
+    w.chunk(Stream::Uplink, 1, b"first").unwrap();
+    let mut b = w.into_inner();
+    let fake_len = 512 * 1024u32;
+    while b.len() < 1_000_000 {
+        b.extend_from_slice(&SYNC);
+        b.push(0);
+        b.extend_from_slice(&7u64.to_le_bytes());
+        b.extend_from_slice(&fake_len.to_le_bytes());
+    }
+    let t0 = std::time::Instant::now();
+    let l = read_bytes(&b).unwrap();
+    let secs = t0.elapsed().as_secs_f64();
+    assert_eq!(l.chunks.len(), 1);
+    assert_eq!(l.stats.damaged_bytes as usize, b.len() - (Reader::new(&b).unwrap().offset() + CHUNK_OVERHEAD + 5));
+    assert!(secs < 5.0, "reading {} bytes of fake chunk headers took {secs:.1} s", b.len());
+}
+
+/// Issue 23: a truth CSV with its columns in another order was read by position.
+#[test]
+fn truth_columns_are_read_by_name() {
+    use subnav_link::record::session::parse_truth_csv;
+    let (rows, bad) = parse_truth_csv("yaw_rad,t_s,d_m,e_m,n_m\n0.5,1,3,2,1\n");
+    assert_eq!(bad, 0);
+    assert_eq!((rows[0].t_s, rows[0].pos_ned_m, rows[0].yaw_rad), (1.0, [1.0, 2.0, 3.0], 0.5));
+    let (rows, _) = parse_truth_csv("t_s,n_m,e_m,d_m,yaw_rad\n1,1,2,3,0.5\n");
+    assert_eq!((rows[0].t_s, rows[0].pos_ned_m, rows[0].yaw_rad), (1.0, [1.0, 2.0, 3.0], 0.5));
+    let (rows, _) = parse_truth_csv("1,1,2,3,0.5\n");
+    assert_eq!(rows.len(), 1);
+    let (rows, bad) = parse_truth_csv("t_s,north,east\n1,2,3\n");
+    assert!(rows.is_empty() && bad > 0);
+}

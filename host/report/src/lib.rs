@@ -319,9 +319,9 @@ pub fn write(d: &ReportData, dir: &Path, images: ImageFormat, title: &str, mut p
         let _ = writeln!(md, "## {name}\n\n{caption}\n\n![{name}]({file})\n");
     }
     let markdown = dir.join("report.md");
-    std::fs::write(&markdown, &md).with_context(|| format!("writing {}", markdown.display()))?;
+    subnav_link::output::write_atomic(&markdown, md.as_bytes())?;
     let html = dir.join("report.html");
-    std::fs::write(&html, to_html(&md)).with_context(|| format!("writing {}", html.display()))?;
+    subnav_link::output::write_atomic(&html, to_html(&md).as_bytes())?;
     Ok(Written { figures, markdown, html, stats: d.stats })
 }
 

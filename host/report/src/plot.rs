@@ -1,12 +1,17 @@
 //! The report's figures with plotters, PNG (bitmap backend) or SVG by file extension. PNG text
 //! needs a TrueType font, looked up at run time (`SUBNAV_FONT`, then DejaVu/Liberation paths);
-//! without one, PNGs are drawn without text rather than failing (SVG text needs no font file).
+//! without one, figures are drawn without text rather than failing (plotters measures SVG text
+//! with the same font, so SVG needs it too: without one, the SVG backend failed every figure).
+//!
+//! A figure is drawn under a temporary name beside its target (`.NAME.tmp-PID.EXT`: the
+//! backend picks the format by extension) and renamed on success, so a failed draw (a full
+//! disk) leaves neither a truncated figure nor a temporary file.
 
 use std::ops::Range;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use anyhow::{Result, anyhow};
+use anyhow::{Context, Result, anyhow};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -49,24 +54,43 @@ fn font_ok() -> bool {
     })
 }
 
-fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow!("plotting: {e:?}")
+fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
+    anyhow!("plotting: {e}")
+}
+
+/// The temporary name a figure is drawn under: beside it, hidden, same extension.
+fn temp_beside(path: &Path) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = path.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{stem}.tmp-{}.{ext}", std::process::id()))
+}
+
+/// Rename the drawn temporary to the figure's name, or remove it after a failed draw.
+fn finish_figure(path: &Path, tmp: &Path, drawn: Result<()>) -> Result<()> {
+    match drawn {
+        Ok(()) => std::fs::rename(tmp, path).with_context(|| format!("moving the figure into place as {}", path.display())),
+        Err(e) => {
+            let _ = std::fs::remove_file(tmp);
+            Err(e.context(format!("drawing {}", path.display())))
+        }
+    }
 }
 
 /// Run `f` on a PNG or SVG drawing area chosen by the file extension.
 macro_rules! with_area {
     ($path:expr, $size:expr, $f:expr) => {{
-        let is_svg = $path.extension().is_some_and(|e| e == "svg");
-        if is_svg {
-            let root = SVGBackend::new($path, $size).into_drawing_area();
-            $f(&root, true)?;
-            root.present().map_err(err)?;
+        let path: &Path = $path;
+        let tmp = temp_beside(path);
+        let is_svg = path.extension().is_some_and(|e| e == "svg");
+        let text = font_ok();
+        let drawn: Result<()> = if is_svg {
+            let root = SVGBackend::new(&tmp, $size).into_drawing_area();
+            $f(&root, text).and_then(|()| root.present().map_err(err))
         } else {
-            let text = font_ok();
-            let root = BitMapBackend::new($path, $size).into_drawing_area();
-            $f(&root, text)?;
-            root.present().map_err(err)?;
-        }
+            let root = BitMapBackend::new(&tmp, $size).into_drawing_area();
+            $f(&root, text).and_then(|()| root.present().map_err(err))
+        };
+        finish_figure(path, &tmp, drawn)?;
         Ok(true)
     }};
 }

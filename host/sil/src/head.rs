@@ -181,6 +181,11 @@ fn default_dvl() -> Option<DvlPlan> {
     Some(DvlPlan::default())
 }
 
+/// Longest dive a scenario may describe, s (one day).
+pub const MAX_DURATION_S: f64 = 86_400.0;
+/// Shortest interval between position fixes, s (a USBL pings at most a few times a second).
+pub const MIN_FIX_PERIOD_S: f64 = 0.1;
+
 /// A dive scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Scenario {
@@ -289,6 +294,91 @@ impl Scenario {
             t += plan.period_s;
         }
         out
+    }
+
+    /// Checks every number a scenario file can set against its range; the error names the
+    /// field, the bound and the value. `subnav sim` writes only scenarios that pass and `subnav
+    /// run` refuses the others, so a hand-edited file cannot hang the run (a survey that never
+    /// advances), ask for gigabytes (a fix every 1e-20 s) or give silently wrong figures (a
+    /// latitude of 95 deg, a year the ephemeris refuses, a fault on a unit that does not exist).
+    pub fn validate(&self) -> anyhow::Result<()> {
+        fn within(what: &str, v: f64, lo: f64, hi: f64) -> anyhow::Result<()> {
+            anyhow::ensure!(v >= lo && v <= hi, "{what} must be in [{lo}, {hi}], got {v}");
+            Ok(())
+        }
+        fn positive(what: &str, v: f64, hi: f64) -> anyhow::Result<()> {
+            anyhow::ensure!(v > 0.0 && v <= hi, "{what} must be > 0 and <= {hi}, got {v}");
+            Ok(())
+        }
+        fn window(what: &str, w: Option<(f64, f64)>) -> anyhow::Result<()> {
+            if let Some((a, b)) = w {
+                anyhow::ensure!(
+                    a.is_finite() && b.is_finite() && 0.0 <= a && a <= b,
+                    "{what} must be a window [start, end] of seconds with 0 <= start <= end, got [{a}, {b}]"
+                );
+            }
+            Ok(())
+        }
+        positive("duration_s", self.duration_s, MAX_DURATION_S)?;
+        // The ephemeris covers 150 years around J2000; 1900..2100 keeps a margin.
+        let (lo_us, hi_us) = (-2_208_988_800_000_000_i64, 4_102_444_800_000_000_i64);
+        anyhow::ensure!(
+            (lo_us..=hi_us).contains(&self.start_utc_unix_us),
+            "start_utc_unix_us must be between 1900-01-01 ({lo_us}) and 2100-01-01 ({hi_us}), got {}",
+            self.start_utc_unix_us
+        );
+        within("lat_deg", self.lat_deg, -90.0, 90.0)?;
+        within("lon_deg", self.lon_deg, -180.0, 180.0)?;
+        let s = &self.survey;
+        within("survey.depth_m", s.depth_m, 0.0, 300.0)?;
+        positive("survey.descent_mps", s.descent_mps, 5.0)?;
+        positive("survey.speed_mps", s.speed_mps, 5.0)?;
+        positive("survey.leg_m", s.leg_m, 100_000.0)?;
+        positive("survey.spacing_m", s.spacing_m, 10_000.0)?;
+        within("survey.heading0_rad", s.heading0_rad, -100.0, 100.0)?;
+        within("survey.rest_s", s.rest_s, 0.0, 3600.0)?;
+        within("survey.ramp_s", s.ramp_s, 0.0, 600.0)?;
+        positive("turbidity", self.turbidity, 100.0)?;
+        within("imu_noise_scale", self.imu_noise_scale, 0.0, 100.0)?;
+        let f = &self.faults;
+        window("faults.imu_nack_s", f.imu_nack_s)?;
+        if let Some((t, axis)) = f.imu_stuck_axis {
+            anyhow::ensure!(
+                t.is_finite() && t >= 0.0 && axis <= 5,
+                "faults.imu_stuck_axis must be [time >= 0 s, axis 0..=5], got [{t}, {axis}]"
+            );
+        }
+        if let Some((a, b, unit)) = f.occluded_unit {
+            window("faults.occluded_unit", Some((a, b)))?;
+            anyhow::ensure!(
+                unit < head::POLARIZATION_UNITS,
+                "faults.occluded_unit's unit must be 0..={}, got {unit}",
+                head::POLARIZATION_UNITS - 1
+            );
+        }
+        within("faults.depth_nack_probability", f.depth_nack_probability, 0.0, 1.0)?;
+        if let Some(p) = &self.position_fixes {
+            within("position_fixes.period_s", p.period_s, MIN_FIX_PERIOD_S, MAX_DURATION_S)?;
+            positive("position_fixes.sigma_m", p.sigma_m, 1000.0)?;
+            within("position_fixes.latency_s", p.latency_s, 0.0, 30.0)?;
+        }
+        if let Some(d) = &self.dvl {
+            within("dvl.seafloor_depth_m", d.seafloor_depth_m, s.depth_m, 11_000.0)?;
+            anyhow::ensure!(
+                d.seafloor_depth_m > s.depth_m,
+                "dvl.seafloor_depth_m ({}) must be deeper than survey.depth_m ({})",
+                d.seafloor_depth_m,
+                s.depth_m
+            );
+            within("dvl.current_ne_mps[0]", d.current_ne_mps[0], -5.0, 5.0)?;
+            within("dvl.current_ne_mps[1]", d.current_ne_mps[1], -5.0, 5.0)?;
+            within("dvl.dropout_probability", d.dropout_probability, 0.0, 1.0)?;
+            within("dvl.invalid_probability", d.invalid_probability, 0.0, 1.0)?;
+            within("dvl.bad_checksum_probability", d.bad_checksum_probability, 0.0, 1.0)?;
+            within("dvl.truncate_probability", d.truncate_probability, 0.0, 1.0)?;
+            window("dvl.silent_s", d.silent_s)?;
+        }
+        Ok(())
     }
 
     pub fn observer(&self) -> Observer {

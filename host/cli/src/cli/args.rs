@@ -1,12 +1,58 @@
-//! Typed clap value parsers shared by the subcommands: the one seed syntax and the fault
-//! windows of `subnav sim`. Each parser returns a `String` error that clap prints after the
-//! flag's name (`error: invalid value '5..2' for '--seeds <SEEDS>': ...`), so bad input ends
-//! with a usage error, never a panic.
+//! Typed clap value parsers shared by the subcommands: the one seed syntax, the fault windows
+//! of `subnav sim`, and bounded numbers. Each parser returns a `String` error that clap prints
+//! after the flag's name (`error: invalid value '5..2' for '--seeds <SEEDS>': ...`), so bad
+//! input ends with a usage error, never a panic.
+//!
+//! Numbers: every number a user can set has a range, checked in one place ([`bounded`]) by
+//! the value parsers [`f64_in`], [`f64_positive_upto`] and [`int_in`]. The error names the
+//! bound (`must be a number in 0..=86400, got inf`); clap adds the flag. The bounds keep a
+//! value from panicking a conversion (`Duration::from_secs_f64(-1)`), overflowing a capacity
+//! (`--upsample 18446744073709551615`) or asking for gigabytes (`--duration-s 1e9`).
 //!
 //! Seeds: `--seed N` selects one seeded run; `--seeds SEEDS` selects several, written `N` (one
 //! seed), `A..B` (A to B exclusive, as a Rust range) or `A..=B` (A to B inclusive).
 
 use std::fmt;
+use std::fmt::Display;
+use std::ops::RangeInclusive;
+use std::str::FromStr;
+
+/// Checks a number against its range: `Ok(v)` inside, else an error naming `what`, the bound
+/// and the value (NaN is outside every range). The one check behind the numeric value parsers,
+/// also usable on numbers read from files.
+pub fn bounded<T: PartialOrd + Display + Copy>(what: &str, v: T, range: &RangeInclusive<T>) -> Result<T, String> {
+    if range.contains(&v) { Ok(v) } else { Err(format!("{what} must be in {}..={}, got {v}", range.start(), range.end())) }
+}
+
+/// A clap value parser: a number in `range` (inclusive; finite because the range is).
+pub fn f64_in(range: RangeInclusive<f64>) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number (expected {}..={})", range.start(), range.end()))?;
+        bounded("the value", v, &range)
+    }
+}
+
+/// A clap value parser: a number in `(0, max]` (durations, distances, periods).
+pub fn f64_positive_upto(max: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+    move |s: &str| {
+        let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number (expected > 0 and <= {max})"))?;
+        if v > 0.0 && v <= max { Ok(v) } else { Err(format!("the value must be > 0 and <= {max}, got {v}")) }
+    }
+}
+
+/// A clap value parser: an integer in `range` (inclusive).
+pub fn int_in<T>(range: RangeInclusive<T>) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static
+where
+    T: FromStr + PartialOrd + Display + Copy + Send + Sync + 'static,
+{
+    move |s: &str| {
+        let v: T = s.trim().parse().map_err(|_| format!("{s:?} is not an integer in {}..={}", range.start(), range.end()))?;
+        bounded("the value", v, &range)
+    }
+}
+
+/// Longest simulated dive or mission a flag may ask for, s (one day; `subnav sim`'s bound).
+pub const MAX_SIM_DURATION_S: f64 = 86_400.0;
 
 /// A non-empty contiguous set of seeds, `first .. first + count`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -169,6 +215,26 @@ mod tests {
         for s in ["30,40,4", "30,40", "40,30,1", "30,40,x"] {
             assert!(parse_occlusion(s).is_err(), "{s:?} parsed");
         }
+    }
+
+    #[test]
+    fn bounded_numbers() {
+        let d = f64_positive_upto(MAX_SIM_DURATION_S);
+        assert_eq!(d("300"), Ok(300.0));
+        assert_eq!(d("86400"), Ok(86_400.0));
+        for s in ["0", "-1", "nan", "NaN", "inf", "-inf", "1e300", "86400.5", "x", ""] {
+            assert!(d(s).is_err(), "{s:?} accepted");
+        }
+        let e = f64_in(0.0..=90.0);
+        assert_eq!(e("0"), Ok(0.0));
+        assert!(e("90.1").unwrap_err().contains("0..=90"));
+        assert!(e("nan").is_err());
+        let k = int_in(1usize..=100);
+        assert_eq!(k("3"), Ok(3));
+        for s in ["0", "101", "18446744073709551615", "-1", "1.5"] {
+            assert!(k(s).is_err(), "{s:?} accepted");
+        }
+        assert_eq!(bounded("x", 5i64, &(0..=4)), Err("x must be in 0..=4, got 5".into()));
     }
 
     #[derive(Parser, Debug)]

@@ -83,7 +83,7 @@ pub fn stream_rtt(
         let mut reader = Source::Serial { path, baud }.open()?;
         let tx = tx.clone();
         std::thread::spawn(move || {
-            let _ = pump(reader.as_mut(), |b| tx.send(In::Uplink(b.to_vec())).is_ok());
+            let _ = pump(reader.as_mut(), None, |b| b.is_empty() || tx.send(In::Uplink(b.to_vec())).is_ok());
         });
     }
     let mut writer = match record {

@@ -45,8 +45,8 @@ pub enum Sub {
 /// The simulated sensor head and water (both simulator modes).
 #[derive(Debug, clap::Args)]
 pub struct Sky {
-    /// Sensor depth (m).
-    #[arg(long, default_value_t = 10.0)]
+    /// Sensor depth (m, 0..=1000).
+    #[arg(long, default_value_t = 10.0, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=1000.0))]
     pub depth_m: f64,
     /// Polarization units in the simulated head.
     #[arg(long, default_value_t = 8)]
@@ -64,14 +64,14 @@ pub struct Sky {
 
 #[derive(Debug, clap::Args)]
 pub struct SimulateArgs {
-    /// Monte Carlo draws.
-    #[arg(long, default_value_t = 1000)]
+    /// Monte Carlo draws (1..=10000000).
+    #[arg(long, allow_hyphen_values = true, default_value_t = 1000, value_parser = super::args::int_in(1usize..=10_000_000))]
     pub draws: usize,
-    /// Lower edge of the sun's apparent elevation band (deg).
-    #[arg(long, default_value_t = 20.0)]
+    /// Lower edge of the sun's apparent elevation band (deg, 0..=90, below the upper edge).
+    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=90.0))]
     pub min_elevation_deg: f64,
-    /// Upper edge of the sun's apparent elevation band (deg).
-    #[arg(long, default_value_t = 70.0)]
+    /// Upper edge of the sun's apparent elevation band (deg, 0..=90).
+    #[arg(long, default_value_t = 70.0, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=90.0))]
     pub max_elevation_deg: f64,
     /// Also write the simulated raw counts as a CSV usable with `compass csv`.
     #[arg(long)]
@@ -82,14 +82,14 @@ pub struct SimulateArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct GeolocateArgs {
-    /// Geolocation trials, each a simulated track.
-    #[arg(long, default_value_t = 50)]
+    /// Geolocation trials, each a simulated track (1..=100000).
+    #[arg(long, allow_hyphen_values = true, default_value_t = 50, value_parser = super::args::int_in(1usize..=100_000))]
     pub trials: usize,
-    /// Track length (s).
-    #[arg(long, default_value_t = 3600)]
+    /// Track length (s, 1..=864000: at most ten days).
+    #[arg(long, allow_hyphen_values = true, default_value_t = 3600, value_parser = super::args::int_in(1i64..=864_000))]
     pub track_s: i64,
-    /// Sample interval along the track (s).
-    #[arg(long, default_value_t = 60)]
+    /// Sample interval along the track (s, 1..=86400).
+    #[arg(long, allow_hyphen_values = true, default_value_t = 60, value_parser = super::args::int_in(1i64..=86_400))]
     pub interval_s: i64,
     /// Heading knowledge 1-sigma (deg) used to turn relative azimuths into azimuths.
     #[arg(long, default_value_t = 0.5)]
@@ -111,6 +111,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match args.command {
         Sub::Simulate(a) => {
             check(&a.sky)?;
+            if a.min_elevation_deg >= a.max_elevation_deg {
+                bail!(
+                    "--min-elevation-deg ({}) must be below --max-elevation-deg ({}): the sun is drawn in that band",
+                    a.min_elevation_deg,
+                    a.max_elevation_deg
+                );
+            }
             simulate(&a, format)
         }
         Sub::Geolocate(a) => {

@@ -36,13 +36,21 @@ pub struct Args {
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
+    /// A live source (--tcp, --serial) that sends nothing for this long ends the decode with an
+    /// error, s.
+    #[arg(long, allow_hyphen_values = true, default_value_t = 60.0, value_parser = super::args::f64_positive_upto(1e6))]
+    pub idle_timeout_s: f64,
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     if let Some(f) = &args.file {
         let mut head = [0u8; 8];
-        let n = std::fs::File::open(f).and_then(|mut h| std::io::Read::read(&mut h, &mut head)).unwrap_or(0);
-        if subnav_link::record::is_recording(&head[..n]) {
+        let mut file = std::fs::File::open(f).map_err(|e| anyhow::anyhow!("opening {}: {e}", f.display()))?;
+        let n = std::io::Read::read(&mut file, &mut head).map_err(|e| anyhow::anyhow!("reading {}: {e}", f.display()))?;
+        if n == 0 {
+            bail!("{} is empty: neither a recording nor uplink bytes", f.display());
+        }
+        if subnav_link::record::looks_like_recording(&head[..n]) {
             return run_recording(f, &args, format);
         }
     }
@@ -69,7 +77,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let mut reader = source.open()?;
     let mut dec = UplinkDecoder::new();
     let quiet = args.quiet;
-    let result = pump(reader.as_mut(), |bytes| {
+    let idle = std::time::Duration::from_secs_f64(args.idle_timeout_s);
+    let result = pump(reader.as_mut(), Some(idle), |bytes| {
         dec.feed(bytes, |e| {
             if !quiet {
                 print::event(&e, format)
@@ -87,9 +96,16 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 fn run_recording(path: &std::path::Path, args: &Args, format: Format) -> Result<ExitCode> {
     use subnav_link::record::{Item, Reader, Stream};
     let bytes = std::fs::read(path).map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
-    let mut reader = Reader::new(&bytes).map_err(|e| anyhow::anyhow!("reading the recording {}: {e}", path.display()))?;
+    let mut reader = Reader::open(&bytes).map_err(|e| anyhow::anyhow!("reading the recording {}: {e}", path.display()))?;
+    if let Some(e) = &reader.header_error {
+        eprintln!("warning: {}: {e}; its metadata (source, ELF) is lost, the chunks after it are read", path.display());
+    }
     let elf = args.elf.clone().or_else(|| reader.meta.elf.as_ref().map(PathBuf::from).filter(|p| p.exists()));
-    let table = elf.as_ref().map(|e| DefmtTable::from_elf_path(e)).transpose()?;
+    let table = elf
+        .as_ref()
+        .map(|e| DefmtTable::from_elf_path(e))
+        .transpose()
+        .map_err(|e| if args.elf.is_some() { e } else { e.context(format!("the ELF named in the header of {}", path.display())) })?;
     let mut logs = table.as_ref().map(|t| t.stream());
     let mut dec = UplinkDecoder::new();
     let (mut defmt_bytes, mut damaged) = (0u64, 0u64);

@@ -34,8 +34,13 @@ pub fn load_session(recording: &std::path::Path, elf: Option<&std::path::Path>) 
     let loaded = subnav_link::record::read_file(recording)?;
     let elf_path = elf.map(|p| p.to_path_buf()).or_else(|| loaded.meta.elf.as_ref().map(PathBuf::from));
     let mut note = None;
+    if let Some(e) = &loaded.header_error {
+        eprintln!("warning: {}: {e}; its metadata (source, ELF) is lost, the chunks after it are read", recording.display());
+    }
     let table = match &elf_path {
-        Some(p) if p.exists() => Some(DefmtTable::from_elf_path(p)?),
+        Some(p) if p.exists() => Some(DefmtTable::from_elf_path(p).with_context(|| {
+            if elf.is_some() { "the --elf given".to_string() } else { format!("the ELF named in the header of {}", recording.display()) }
+        })?),
         Some(p) => {
             note = Some(format!("defmt logs not decoded: the firmware ELF {} is not there (give it with --elf)", p.display()));
             None
@@ -49,9 +54,33 @@ pub fn load_session(recording: &std::path::Path, elf: Option<&std::path::Path>) 
     Ok((s, note))
 }
 
+/// Refuses an output directory whose `NAME.csv` files could overwrite an input (an input that
+/// is a `.csv` file inside it).
+fn refuse_dir_holding_inputs(what: &str, dir: &std::path::Path, inputs: &[&std::path::Path]) -> Result<()> {
+    for input in inputs {
+        let (Some(parent), Some(ext)) = (input.parent(), input.extension()) else { continue };
+        let parent = if parent.as_os_str().is_empty() { std::path::Path::new(".") } else { parent };
+        if ext == "csv" && subnav_link::output::same_file(parent, dir) {
+            bail!(
+                "{what} {} holds the input {}, which the export could overwrite; choose another directory",
+                dir.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     if args.mcap.is_none() && args.csv.is_none() {
         bail!("say what to write: --mcap FILE.mcap and/or --csv DIRECTORY");
+    }
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path()).chain(args.elf.as_deref()).collect();
+    if let Some(p) = &args.mcap {
+        subnav_link::output::refuse_input_as_output("--mcap", p, &inputs)?;
+    }
+    if let Some(d) = &args.csv {
+        refuse_dir_holding_inputs("--csv", d, &inputs)?;
     }
     let (session, note) = load_session(&args.recording, args.elf.as_deref())?;
     if let Some(n) = &note {
@@ -59,12 +88,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     }
     let mut result = json!({"recording": args.recording.display().to_string(), "messages": session.messages.len(), "corrupt_frames": session.corrupt.len(), "log_lines": session.logs.len(), "damaged_regions": session.damage.len()});
     if let Some(path) = &args.mcap {
-        let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        // Under a temporary name until complete: a failure (a full disk) leaves no truncated MCAP.
+        let mut f = subnav_link::output::AtomicFile::create(path)?;
         let bar = super::record::progress_bar(0, "writing MCAP");
-        let summary = export::mcap::write(&session, std::io::BufWriter::new(f), args.time, |done, total| {
+        let summary = export::mcap::write(&session, std::io::BufWriter::new(&mut f), args.time, |done, total| {
             bar.set_length(total);
             bar.set_position(done);
-        })?;
+        })
+        .with_context(|| format!("writing the MCAP file {}", path.display()))?;
+        f.commit()?;
         bar.finish_and_clear();
         match format {
             Format::Text => {

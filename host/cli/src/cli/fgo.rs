@@ -71,8 +71,8 @@ pub enum Sub {
         /// Seed of the simulated mission.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Mission length, s.
-        #[arg(long, default_value_t = 600.0)]
+        /// Mission length, s (more than 10, at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 600.0, value_parser = args::f64_positive_upto(args::MAX_SIM_DURATION_S))]
         duration_s: f64,
         /// Fraction of DVL/USBL observations made abnormal.
         #[arg(long, default_value_t = 0.1)]
@@ -83,8 +83,8 @@ pub enum Sub {
         /// Seeds of the simulated missions: `N`, `A..B` (B exclusive) or `A..=B`.
         #[arg(long, default_value = "1..=100", value_parser = args::parse_seeds)]
         seeds: Seeds,
-        /// Mission length, s.
-        #[arg(long, default_value_t = 300.0)]
+        /// Mission length, s (more than 10, at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 300.0, value_parser = args::f64_positive_upto(args::MAX_SIM_DURATION_S))]
         duration_s: f64,
         /// Fraction of DVL/USBL observations made abnormal.
         #[arg(long, default_value_t = 0.1)]
@@ -257,6 +257,10 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Sub::Replay { input, out, no_gating, realtime, lag_s, confidence, decisions, quiet } => {
+            subnav_link::output::refuse_input_as_output("--out", &out, &[&input])?;
+            if let Some(d) = &decisions {
+                subnav_link::output::refuse_input_as_output("--decisions", d, &[&input])?;
+            }
             let f = File::open(&input).with_context(|| format!("cannot open {}", input.display()))?;
             let log = SensorLog::read(BufReader::new(f)).with_context(|| format!("reading {}", input.display()))?;
             let cfg = SmootherConfig { lag_s, gating: GatingConfig { enabled: !no_gating, confidence }, ..Default::default() };

@@ -33,8 +33,8 @@ pub enum Sub {
         /// Seed of the simulated dive.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Dive length, s.
-        #[arg(long, default_value_t = 600.0)]
+        /// Dive length, s (at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 600.0, value_parser = args::f64_positive_upto(args::MAX_SIM_DURATION_S))]
         duration_s: f64,
     },
     /// Replay a CSV sensor log (format in `subnav_sil::filter::replay`) through the filter.
@@ -47,8 +47,8 @@ pub enum Sub {
         /// Use the adaptive filter (Sage-Husa R + fading factor).
         #[arg(long)]
         adaptive: bool,
-        /// Output interval (s of IMU time).
-        #[arg(long, default_value_t = 0.1)]
+        /// Output interval (s of IMU time, > 0 and at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.1, value_parser = args::f64_positive_upto(86_400.0))]
         every_s: f64,
     },
     /// AUKF vs plain UKF over seeded simulated dives.
@@ -57,15 +57,15 @@ pub enum Sub {
         #[arg(long, default_value = "0..500", value_parser = args::parse_seeds)]
         seeds: Seeds,
         /// Worker threads.
-        #[arg(long, default_value_t = 2)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 2, value_parser = args::int_in(1usize..=256))]
         threads: usize,
-        /// Dive length, s.
-        #[arg(long, default_value_t = 600.0)]
+        /// Dive length, s (at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 600.0, value_parser = args::f64_positive_upto(args::MAX_SIM_DURATION_S))]
         duration_s: f64,
         /// AUKF without the fading factor (Sage-Husa R only).
         #[arg(long)]
         no_fading: bool,
-        /// Sage-Husa forgetting factor b of the AUKF.
+        /// Sage-Husa forgetting factor b of the AUKF, in (0, 1).
         #[arg(long)]
         b: Option<f32>,
     },
@@ -102,10 +102,17 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Sub::Replay { log, out, adaptive, every_s } => {
+            subnav_link::output::refuse_input_as_output("--out", &out, &[&log])?;
             let text = std::fs::read_to_string(&log).with_context(|| format!("reading {}", log.display()))?;
             let (init, events) = replay::parse_log(&text).with_context(|| format!("parsing {}", log.display()))?;
             let cfg = if adaptive { NavConfig::default().adaptive() } else { NavConfig::default() };
             let r = replay::replay(cfg, init, &events, every_s)?;
+            if r.rows.is_empty() {
+                anyhow::bail!(
+                    "{} gave no estimates: it has no IMU samples the filter could run on (see `subnav filter simulate` for the format)",
+                    log.display()
+                );
+            }
             let body = if out.extension().is_some_and(|e| e == "json") {
                 let mut s = String::new();
                 for row in &r.rows {
@@ -116,7 +123,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             } else {
                 replay::rows_csv(&r.rows)
             };
-            std::fs::write(&out, body).with_context(|| format!("writing {}", out.display()))?;
+            subnav_link::output::write_atomic(&out, body.as_bytes())?;
             match format {
                 Format::Text => {
                     println!("{} estimates written to {}; events: {:?}; health: {}", r.rows.len(), out.display(), r.counts, r.health)

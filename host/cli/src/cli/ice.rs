@@ -75,8 +75,8 @@ pub struct SimulateArgs {
     /// Output directory for results.json.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Path length of each simulated run, m.
-    #[arg(long, default_value_t = 500.0)]
+    /// Path length of each simulated run, m (at most 10 km).
+    #[arg(long, allow_hyphen_values = true, default_value_t = 500.0, value_parser = super::args::f64_positive_upto(10_000.0))]
     pub distance_m: f64,
     /// Also run the ablations (no sonar, no depth, no adaptivity, no FEJ, IMU-based augmentation
     /// only, IMU only).

@@ -31,14 +31,14 @@ pub enum Sub {
         /// Training samples (CSV: features..., integer label).
         #[arg(long)]
         train: PathBuf,
-        /// Target neighbours per sample (and the k of kNN).
-        #[arg(long, default_value_t = 3)]
+        /// Target neighbours per sample (and the k of kNN), 1..=1000.
+        #[arg(long, allow_hyphen_values = true, default_value_t = 3, value_parser = super::args::int_in(1usize..=1000))]
         k: usize,
-        /// Maximum gradient iterations.
-        #[arg(long, default_value_t = 1000)]
+        /// Maximum gradient iterations (2..=1000000).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1000, value_parser = super::args::int_in(2usize..=1_000_000))]
         max_iter: usize,
-        /// Pull-term weight (push gets 1 - this).
-        #[arg(long, default_value_t = 0.5)]
+        /// Pull-term weight (push gets 1 - this), 0..=1.
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.5, value_parser = super::args::f64_in(0.0..=1.0))]
         regularization: f64,
         /// Output model (JSON).
         #[arg(long)]
@@ -58,6 +58,7 @@ pub enum Sub {
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match args.command {
         Sub::Fit { train, k, max_iter, regularization, out } => {
+            subnav_link::output::refuse_input_as_output("--out", &out, &[&train])?;
             let (x, y) = read_csv(&train)?;
             if k == 0 {
                 bail!("--k must be at least 1");

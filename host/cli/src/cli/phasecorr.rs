@@ -18,8 +18,8 @@ pub struct Args {
     pub reference: PathBuf,
     /// Moving image, same size.
     pub moving: PathBuf,
-    /// Sub-pixel resolution 1/N pixel (1: integer shift only).
-    #[arg(long, default_value_t = 100)]
+    /// Sub-pixel resolution 1/N pixel (1: integer shift only), 1..=1000.
+    #[arg(long, allow_hyphen_values = true, default_value_t = 100, value_parser = super::args::int_in(1usize..=1000))]
     pub upsample: usize,
     /// Search every sample of the upsampled neighbourhood (as scikit-image does) instead of coarse-to-fine.
     #[arg(long)]
@@ -28,6 +28,9 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     pub time_repeat: u32,
 }
+
+/// Smallest image side phase correlation is run on, pixels.
+const MIN_SIDE_PX: usize = 8;
 
 /// CPU time of this process, seconds.
 fn cpu_time_s() -> f64 {
@@ -42,8 +45,16 @@ fn cpu_time_s() -> f64 {
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let a = read_png_gray(&args.reference)?;
     let b = read_png_gray(&args.moving)?;
-    if args.upsample == 0 {
-        bail!("--upsample must be >= 1");
+    // A shift needs texture on both axes: a uniform image, or one a few pixels wide, has no
+    // correlation peak and gave a meaningless -0.75 px "shift" (peak 0).
+    for (img, path) in [(&a, &args.reference), (&b, &args.moving)] {
+        if img.rows < MIN_SIDE_PX || img.cols < MIN_SIDE_PX {
+            bail!("{} is {} x {} pixels: phase correlation needs at least {MIN_SIDE_PX} a side", path.display(), img.cols, img.rows);
+        }
+        let first = img.data[0];
+        if img.data.iter().all(|&v| v == first) {
+            bail!("{} is uniform (every pixel {first}): it has no texture to register", path.display());
+        }
     }
     let mode = if args.full_search { Refinement::Full } else { Refinement::CoarseToFine };
     let mut pc = PhaseCorrelator::new(a.rows, a.cols);

@@ -16,8 +16,8 @@ pub struct Args {
     /// The QEMU board firmware ELF (`cargo xtask build --board qemu` prints where it is).
     #[arg(long)]
     pub elf: PathBuf,
-    /// Firmware time to run before the board exits, ms (0 = until the firmware stops itself).
-    #[arg(long, default_value_t = 5_000)]
+    /// Firmware time to run before the board exits, ms (0 = until the firmware stops itself; at most a day).
+    #[arg(long, allow_hyphen_values = true, default_value_t = 5_000, value_parser = super::args::int_in(0u64..=86_400_000))]
     pub run_ms: u64,
     /// Wall-clock limit, seconds.
     #[arg(long, default_value_t = 120)]

@@ -43,10 +43,16 @@ pub struct Args {
     /// (and needed to find the RTT control block with --chip).
     #[arg(long)]
     pub elf: Option<PathBuf>,
-    /// Stop after this many seconds (default: until the source closes or Ctrl-C).
-    #[arg(long)]
+    /// Stop after this many seconds (default: until the source closes or Ctrl-C); at most a year.
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::f64_positive_upto(MAX_RECORD_S))]
     pub duration_s: Option<f64>,
+    /// End with an error when the source sends nothing for this long, s (default: wait).
+    #[arg(long, allow_hyphen_values = true, value_parser = super::args::f64_positive_upto(MAX_RECORD_S))]
+    pub idle_timeout_s: Option<f64>,
 }
+
+/// Longest `--duration-s` of a live recording, s (a year).
+pub const MAX_RECORD_S: f64 = 365.0 * 86_400.0;
 
 /// A progress bar on stderr (hidden when stderr is not a terminal): `len` 0 = spinner.
 pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
@@ -114,16 +120,26 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     };
     let mut meta = Meta::new(source.to_string());
     meta.elf = args.elf.as_ref().map(|p| p.display().to_string());
+    if let Some(elf) = &args.elf {
+        subnav_link::output::refuse_input_as_output("--out", &args.out, &[elf])?;
+    }
     let mut reader = source.open()?;
-    let mut w = Writer::create(&args.out, &meta)?;
+    // Under a temporary name until the first data arrives: a source that fails or closes at
+    // once leaves an old recording at --out untouched.
+    let mut w = Writer::create_atomic(&args.out, &meta)?;
     let bar = progress_bar(0, "recording");
     let started = Instant::now();
     let mut dec = UplinkDecoder::new();
     let mut status = LiveStatus::default();
     let mut write_err = None;
     let limit = args.duration_s.map(Duration::from_secs_f64);
-    let result = pump(reader.as_mut(), |bytes| {
-        if let Err(e) = w.chunk_now(Stream::Uplink, bytes) {
+    let idle = args.idle_timeout_s.map(Duration::from_secs_f64);
+    let result = pump(reader.as_mut(), idle, |bytes| {
+        if bytes.is_empty() {
+            // The source is quiet: only the time limit to check.
+            return limit.is_none_or(|l| started.elapsed() < l);
+        }
+        if let Err(e) = w.chunk_now(Stream::Uplink, bytes).and_then(|()| w.publish()) {
             write_err = Some(e);
             return false;
         }
@@ -138,6 +154,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         return Err(e);
     }
     status.seconds = started.elapsed().as_secs_f64();
+    if w.chunks[usize::from(Stream::Uplink.code())] == 0 {
+        result?;
+        bail!("{source} sent no data in {:.1} s: nothing recorded, {} not written", status.seconds, args.out.display());
+    }
+    w.into_inner().commit()?;
     finish(&args, &status, format);
     result?;
     Ok(ExitCode::SUCCESS)

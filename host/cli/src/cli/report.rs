@@ -32,8 +32,8 @@ pub enum Sub {
         /// Seed of the simulated dive.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Dive length, s.
-        #[arg(long, default_value_t = 300.0)]
+        /// Dive length, s (at most a day).
+        #[arg(long, allow_hyphen_values = true, default_value_t = 300.0, value_parser = super::args::f64_positive_upto(super::args::MAX_SIM_DURATION_S))]
         duration_s: f64,
         #[command(flatten)]
         page: Page,
@@ -101,6 +101,14 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         None => None,
     };
     let data = ReportData::from_session(&session, truth);
+    if !data.truth.is_empty() && data.stats.is_none() {
+        let span = |v: &mut dyn Iterator<Item = f64>| v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| (a.min(t), b.max(t)));
+        let (t0, t1) = span(&mut data.truth.iter().map(|t| t.t_s));
+        let (n0, n1) = span(&mut data.nav.iter().map(|n| n.t_s));
+        eprintln!(
+            "warning: the truth ({t0:.1}..{t1:.1} s) does not overlap the recording's solutions ({n0:.1}..{n1:.1} s): no error statistics"
+        );
+    }
     let bar = super::record::progress_bar(report::plot::FIGURES.len() as u64, "drawing");
     let written = report::write(&data, &args.out, args.images, &args.title, |name| {
         bar.set_message(name.to_string());

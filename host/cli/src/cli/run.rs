@@ -87,9 +87,7 @@ fn load(args: &Args) -> Result<Scenario> {
             None => bail!("--no-map-fixes: {name} has no camera (write one with `subnav sim --camera`)"),
         }
     }
-    if !(sc.duration_s > 0.0 && sc.duration_s <= 86_400.0) {
-        bail!("{name}: duration_s must be in (0, 86400]");
-    }
+    sc.validate().with_context(|| format!("the scenario {name}"))?;
     Ok(sc)
 }
 
@@ -169,6 +167,12 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    let inputs: Vec<&std::path::Path> = args.scenario.as_deref().into_iter().chain(args.elf.as_deref()).collect();
+    for (flag, out) in [("--record", &args.record), ("--truth", &args.truth)] {
+        if let Some(p) = out {
+            subnav_link::output::refuse_input_as_output(flag, p, &inputs)?;
+        }
+    }
     let sc = load(&args)?;
     if let Some(seeds) = &args.seeds {
         return run_seeds(&sc, seeds, format);

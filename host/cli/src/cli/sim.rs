@@ -83,16 +83,16 @@ pub struct Args {
     #[arg(long, default_value_t = 0.005)]
     pub dvl_corrupt_probability: f64,
     /// DVL fault: no output from A to B s (`A,B`).
-    #[arg(long, value_name = "A,B", value_parser = args::parse_window)]
+    #[arg(long, value_name = "A,B", allow_hyphen_values = true, value_parser = args::parse_window)]
     pub dvl_silent: Option<args::Window>,
     /// Fault: the IMU NACKs every transaction from A to B s (`A,B`).
-    #[arg(long, value_name = "A,B", value_parser = args::parse_window)]
+    #[arg(long, value_name = "A,B", allow_hyphen_values = true, value_parser = args::parse_window)]
     pub imu_nack: Option<args::Window>,
     /// Fault: an IMU axis stuck from T s on (`T,AXIS`; axes 0-2 accel x/y/z, 3-5 gyro x/y/z).
-    #[arg(long, value_name = "T,AXIS", value_parser = args::parse_stuck_axis)]
+    #[arg(long, value_name = "T,AXIS", allow_hyphen_values = true, value_parser = args::parse_stuck_axis)]
     pub imu_stuck: Option<args::StuckAxis>,
     /// Fault: a polarization unit occluded from A to B s (`A,B,UNIT`; units 0-3).
-    #[arg(long, value_name = "A,B,UNIT", value_parser = args::parse_occlusion)]
+    #[arg(long, value_name = "A,B,UNIT", allow_hyphen_values = true, value_parser = args::parse_occlusion)]
     pub occluded: Option<args::Occlusion>,
     /// Fault: probability that a depth-sensor transaction is NACKed.
     #[arg(long, default_value_t = 0.0)]
@@ -205,6 +205,7 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
     f.imu_stuck_axis = a.imu_stuck.map(|s| (s.from_s, s.axis));
     f.occluded_unit = a.occluded.map(|o| (o.window.start_s, o.window.end_s, o.unit));
     sc.faults = f;
+    sc.validate().context("the scenario these flags describe")?;
     Ok(sc)
 }
 

@@ -20,14 +20,14 @@ pub struct Args {
     /// Longitude (deg, east positive).
     #[arg(long, allow_hyphen_values = true)]
     pub lon: f64,
-    /// Height above sea level (m).
-    #[arg(long, default_value_t = 0.0)]
+    /// Height above sea level (m, -500..=9000).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::f64_in(-500.0..=9000.0))]
     pub elevation_m: f64,
-    /// Air pressure (hPa) for the refraction correction.
-    #[arg(long, default_value_t = 1013.25)]
+    /// Air pressure (hPa, 300..=1100) for the refraction correction.
+    #[arg(long, default_value_t = 1013.25, allow_hyphen_values = true, value_parser = super::args::f64_in(300.0..=1100.0))]
     pub pressure_hpa: f64,
-    /// Air temperature (C) for the refraction correction.
-    #[arg(long, default_value_t = 12.0, allow_hyphen_values = true)]
+    /// Air temperature (C, -90..=60) for the refraction correction.
+    #[arg(long, default_value_t = 12.0, allow_hyphen_values = true, value_parser = super::args::f64_in(-90.0..=60.0))]
     pub temp_c: f64,
     /// TT - UT1 (s); default: the Espenak & Meeus polynomial.
     #[arg(long)]

@@ -87,7 +87,7 @@ pub fn write(session: &Session, dir: &Path) -> Result<Vec<(PathBuf, u64)>> {
     let mut written = vec![];
     for (name, t) in &tables {
         let p = dir.join(format!("{name}.csv"));
-        std::fs::write(&p, t.text()).with_context(|| format!("writing {}", p.display()))?;
+        crate::output::write_atomic(&p, t.text().as_bytes())?;
         written.push((p, t.rows.len() as u64));
     }
     Ok(written)

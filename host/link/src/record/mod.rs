@@ -134,3 +134,15 @@ pub fn now_unix_us() -> u64 {
 pub fn is_recording(bytes: &[u8]) -> bool {
     bytes.starts_with(&MAGIC)
 }
+
+/// Whether the first bytes of a file (up to 8) are, or were, a recording's magic: intact, cut
+/// short, a bit or two flipped, or mangled by a text-mode copy (`\r\n` -> `\n`). Such a file
+/// is read as a recording, whose reader recovers it or says what is wrong, never as raw bytes.
+pub fn looks_like_recording(head: &[u8]) -> bool {
+    let head = &head[..head.len().min(MAGIC.len())];
+    if head.is_empty() {
+        return false;
+    }
+    let flipped_bits: u32 = head.iter().zip(MAGIC).map(|(a, b)| (a ^ b).count_ones()).sum();
+    MAGIC.starts_with(head) || head.starts_with(&MAGIC[..6]) || (head.len() == MAGIC.len() && flipped_bits <= 2)
+}

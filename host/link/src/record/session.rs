@@ -51,16 +51,28 @@ pub struct Session {
 /// Parse truth CSV text (`t_s,n_m,e_m,d_m,yaw_rad`, header lines and blank lines skipped).
 /// Returns the rows and the number of lines that were neither a header nor a valid row.
 pub fn parse_truth_csv(text: &str) -> (Vec<TruthRow>, u64) {
+    const COLUMNS: [&str; 5] = ["t_s", "n_m", "e_m", "d_m", "yaw_rad"];
     let (mut rows, mut bad) = (vec![], 0u64);
+    // Column positions: by name from a header line (any order, extra columns allowed), else
+    // the documented order.
+    let mut at = [0, 1, 2, 3, 4];
     for line in text.lines() {
         let line = line.trim();
-        if line.is_empty() || line.starts_with('#') || line.starts_with("t_s") {
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if line.starts_with("t_s") || line.split(',').any(|f| COLUMNS.contains(&f.trim())) {
+            let names: Vec<&str> = line.split(',').map(str::trim).collect();
+            match COLUMNS.map(|c| names.iter().position(|n| *n == c)) {
+                [Some(a), Some(b), Some(c), Some(d), Some(e)] => at = [a, b, c, d, e],
+                _ => return (Vec::new(), text.lines().count() as u64), // a header without the columns: nothing is truth
+            }
             continue;
         }
         let v: Vec<Option<f64>> = line.split(',').map(|f| f.trim().parse::<f64>().ok()).collect();
-        match v.as_slice() {
-            [Some(t), Some(n), Some(e), Some(d), Some(y), ..] if [*t, *n, *e, *d, *y].iter().all(|x| x.is_finite()) => {
-                rows.push(TruthRow { t_s: *t, pos_ned_m: [*n, *e, *d], yaw_rad: *y })
+        match at.map(|i| v.get(i).copied().flatten()) {
+            [Some(t), Some(n), Some(e), Some(d), Some(y)] if [t, n, e, d, y].iter().all(|x| x.is_finite()) => {
+                rows.push(TruthRow { t_s: t, pos_ned_m: [n, e, d], yaw_rad: y })
             }
             _ => bad += 1,
         }

@@ -17,12 +17,14 @@ pub struct QemuRecorder {
 }
 
 impl QemuRecorder {
-    /// Create the recording at `path` and point `cfg.raw_tap` at it.
+    /// Create the recording at `path` and point `cfg.raw_tap` at it. The file is written under a
+    /// temporary name until the first bytes arrive: a run that fails before (QEMU missing, a bad
+    /// ELF) leaves an old recording at `path` untouched.
     pub fn start(cfg: &mut QemuConfig, path: &Path) -> Result<Self> {
         let mut meta = Meta::new(format!("qemu {}", cfg.elf.display()));
         meta.elf = Some(cfg.elf.display().to_string());
         meta.board_args = cfg.board_args.clone();
-        let mut w = Writer::create(path, &meta)?;
+        let mut w = Writer::create_atomic(path, &meta)?;
         let (tx, rx) = mpsc::channel::<RawBytes>();
         cfg.raw_tap = Some(tx);
         let handle = std::thread::spawn(move || -> Result<[u64; 4]> {
@@ -32,9 +34,15 @@ impl QemuRecorder {
                     RawBytes::Defmt(b) => w.chunk_now(Stream::Defmt, &b)?,
                     RawBytes::Downlink(b) => w.chunk_now(Stream::Downlink, &b)?,
                 }
+                if w.chunks.iter().any(|&n| n > 0) {
+                    w.publish()?;
+                }
             }
-            w.flush()?;
-            Ok(w.chunks)
+            let chunks = w.chunks;
+            if chunks.iter().any(|&n| n > 0) {
+                w.into_inner().commit()?;
+            }
+            Ok(chunks)
         });
         Ok(Self { handle })
     }

@@ -26,6 +26,22 @@ impl Writer<std::fs::File> {
     }
 }
 
+impl Writer<crate::output::AtomicFile> {
+    /// Create a recording under a temporary name beside `path`: an old file at `path` is
+    /// replaced only when [`Writer::publish`] (first data arrived) or the file's
+    /// [`AtomicFile::commit`](crate::output::AtomicFile::commit) is called; a run that fails
+    /// before leaves it untouched and no temporary file behind.
+    pub fn create_atomic(path: &Path, meta: &Meta) -> Result<Self> {
+        let f = crate::output::AtomicFile::create(path).with_context(|| format!("creating the recording {}", path.display()))?;
+        Writer::new(f, meta)
+    }
+
+    /// Give the recording its name now (see [`crate::output::AtomicFile::publish`]).
+    pub fn publish(&mut self) -> Result<()> {
+        self.out.publish()
+    }
+}
+
 impl<W: Write> Writer<W> {
     /// Write the header.
     pub fn new(mut out: W, meta: &Meta) -> Result<Self> {

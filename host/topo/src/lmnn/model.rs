@@ -54,10 +54,18 @@ pub struct LmnnModel {
     pub report: Option<FitReport>,
 }
 
+/// Most training samples [`LmnnModel::fit`] accepts: the solver holds n x n pairwise
+/// distances (10,000 samples: 800 MB; 100,000 asked for 80 GB and aborted).
+pub const MAX_FIT_SAMPLES: usize = 10_000;
+
 impl LmnnModel {
     /// Standardise `x`, fit LMNN, keep what kNN needs.
     pub fn fit(x: &DMatrix<f64>, y: &[i64], cfg: &LmnnConfig) -> Result<Self> {
+        subnav_base::limits::check_rows("the training set", x.nrows(), MAX_FIT_SAMPLES).map_err(anyhow::Error::msg)?;
         let scaler = Scaler::fit(x);
+        if let Some(c) = scaler.mean.iter().zip(&scaler.scale).position(|(m, s)| !m.is_finite() || !s.is_finite()) {
+            bail!("feature {} is too large to standardise (its mean or standard deviation overflows f64); rescale the features", c + 1);
+        }
         let xs = scaler.transform(x);
         let (l, report) = fit(&xs, y, cfg)?;
         Ok(LmnnModel {
@@ -133,7 +141,8 @@ impl LmnnModel {
 }
 
 /// Read labelled samples: comma-separated, features then an integer label; a first line that
-/// does not parse as numbers is a header. Every row must have the same number of columns.
+/// with no number in any cell is a header (one with a typo in a single cell is an error). Every
+/// row must have the same number of columns.
 pub fn read_csv(path: &Path) -> Result<(DMatrix<f64>, Vec<i64>)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     parse_csv(&text).with_context(|| format!("{}", path.display()))
@@ -150,7 +159,8 @@ pub fn parse_csv(text: &str) -> Result<(DMatrix<f64>, Vec<i64>)> {
         let cells: Vec<&str> = line.split(',').map(str::trim).collect();
         let parsed: Option<Vec<f64>> = cells.iter().map(|c| c.parse::<f64>().ok()).collect();
         let Some(vals) = parsed else {
-            if rows.is_empty() && labels.is_empty() && ln == 0 {
+            // A header has no number at all; a first row with one typo (`1,2.O,0`) is an error.
+            if rows.is_empty() && labels.is_empty() && ln == 0 && cells.iter().all(|c| c.parse::<f64>().is_err()) {
                 continue; // header
             }
             bail!("line {}: not a number in {line:?}", ln + 1);

@@ -260,13 +260,16 @@ pub fn fit(x: &DMatrix<f64>, y: &[i64], cfg: &LmnnConfig) -> Result<(DMatrix<f64
     if let Some((idx, _)) = x.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         return Err(LmnnError::NonFinite { row: idx % n, col: idx / n });
     }
-    if cfg.k == 0
-        || cfg.learn_rate.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
-        || !(0.0..=1.0).contains(&cfg.regularization)
-        || cfg.max_iter < 2
-        || !(cfg.active_set_eps >= 0.0 && cfg.active_set_eps < 1.0)
-    {
-        return Err(LmnnError::BadConfig(format!("{cfg:?}")));
+    // Each setting checked on its own, so the message names it (not a dump of the whole config).
+    let checks = [
+        (cfg.k >= 1, format!("k must be at least 1, got {}", cfg.k)),
+        (cfg.learn_rate > 0.0 && cfg.learn_rate.is_finite(), format!("learn_rate must be > 0, got {}", cfg.learn_rate)),
+        ((0.0..=1.0).contains(&cfg.regularization), format!("regularization must be in 0..=1, got {}", cfg.regularization)),
+        (cfg.max_iter >= 2, format!("max_iter must be at least 2, got {}", cfg.max_iter)),
+        ((0.0..1.0).contains(&cfg.active_set_eps), format!("active_set_eps must be in [0, 1), got {}", cfg.active_set_eps)),
+    ];
+    if let Some((_, msg)) = checks.into_iter().find(|(ok, _)| !ok) {
+        return Err(LmnnError::BadConfig(msg));
     }
     let (labels, uniq) = encode_labels(y);
     if uniq.len() < 2 {

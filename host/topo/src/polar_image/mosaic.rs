@@ -46,6 +46,8 @@ impl Mosaic {
         let mut dec = png::Decoder::new(r);
         dec.set_transformations(png::Transformations::IDENTITY);
         let mut reader = dec.read_info().context("not a PNG")?;
+        let (w, h) = (reader.info().width, reader.info().height);
+        subnav_base::limits::check_image_size("the PNG", w, h).map_err(anyhow::Error::msg)?;
         let mut buf = vec![0; reader.output_buffer_size()];
         let info = reader.next_frame(&mut buf).context("PNG image data")?;
         if info.color_type != png::ColorType::Grayscale {

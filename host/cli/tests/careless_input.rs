@@ -1,0 +1,435 @@
+//! Issue 23, "careless input never crashes, hangs, lies or destroys data": the bad-input probes
+//! of the issue against the `subnav` binary. Each must end quickly with a clear error that
+//! names the input and its bound (never a panic, an abort or a hang), and must leave existing
+//! files alone. Every probe here ended in a panic, a multi-gigabyte allocation, a hang, a
+//! destroyed file or a silent wrong result before the fix; none of them runs a long job.
+
+use std::io::Write;
+use std::net::TcpListener;
+use std::path::Path;
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn subnav() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_subnav"))
+}
+
+/// Runs and returns (output, stderr text).
+fn run(c: &mut Command) -> (Output, String) {
+    let o = c.output().unwrap();
+    let e = String::from_utf8_lossy(&o.stderr).into_owned();
+    (o, e)
+}
+
+/// The command fails without a panic and its stderr has every one of `needles`.
+fn refused(c: &mut Command, needles: &[&str]) -> String {
+    let t0 = Instant::now();
+    let (o, e) = run(c);
+    assert!(!o.status.success(), "{c:?} succeeded: {e}");
+    assert!(!e.contains("panicked") && !e.contains("memory allocation"), "{c:?}: {e}");
+    assert!(o.status.code().is_some(), "{c:?} died of a signal: {e}");
+    for n in needles {
+        assert!(e.contains(n), "{c:?}: {n:?} not in {e}");
+    }
+    assert!(t0.elapsed() < Duration::from_secs(30), "{c:?} took {:?}", t0.elapsed());
+    e
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    v.sort();
+    v
+}
+
+/// A.2: flags that panicked (`Duration::from_secs_f64(-1)`, capacity overflow), now usage
+/// errors naming the flag and the bound; `record` no longer truncates its output first.
+#[test]
+fn numbers_out_of_range_are_usage_errors_not_panics() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("x.snrec");
+    std::fs::write(&rec, b"keep me").unwrap();
+    for bad in ["-1", "nan", "inf", "1e300"] {
+        refused(subnav().args(["record", "--tcp", "127.0.0.1:9", "-o"]).arg(&rec).arg(format!("--duration-s={bad}")), &["--duration-s"]);
+        assert_eq!(std::fs::read(&rec).unwrap(), b"keep me");
+    }
+    let out = dir.path().join("r");
+    refused(subnav().args(["report", "simulate", "--duration-s", "inf", "--out"]).arg(&out), &["--duration-s", "86400"]);
+    refused(subnav().args(["filter", "simulate", "--duration-s", "inf", "--out"]).arg(dir.path().join("f.csv")), &["--duration-s"]);
+    let train = dir.path().join("train.csv");
+    std::fs::write(&train, "1,2,0\n2,3,0\n5,5,1\n6,5,1\n").unwrap();
+    refused(
+        subnav().args(["lmnn", "fit", "--k", "18446744073709551615", "--train"]).arg(&train).arg("--out").arg(dir.path().join("m.json")),
+        &["--k", "1..=1000"],
+    );
+    refused(subnav().args(["phasecorr", "a.png", "b.png", "--upsample", "18446744073709551615"]), &["--upsample", "1..=1000"]);
+}
+
+/// A.3: sizes that asked for gigabytes, now refused with their bound before anything is
+/// allocated.
+#[test]
+fn sizes_have_caps() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    refused(subnav().args(["sim", "--fix-period-s", "1e-9", "--out"]).arg(d.join("s.json")), &["position_fixes.period_s", "0.1"]);
+    assert!(!d.join("s.json").exists());
+    refused(subnav().args(["qemu", "--elf", "x.elf", "--run-ms", "18446744073709551615"]), &["--run-ms", "86400000"]);
+    refused(subnav().args(["report", "simulate", "--duration-s", "1e7", "--out"]).arg(d.join("r")), &["--duration-s"]);
+    refused(subnav().args(["filter", "simulate", "--duration-s", "1e9", "--out"]).arg(d.join("f.csv")), &["--duration-s"]);
+    refused(subnav().args(["filter", "monte-carlo", "--duration-s", "1e8"]), &["--duration-s"]);
+    refused(subnav().args(["fgo", "simulate", "--duration-s", "1e7", "--out"]).arg(d.join("g.jsonl")), &["--duration-s"]);
+    refused(subnav().args(["fgo", "monte-carlo", "--duration-s", "1e9"]), &["--duration-s"]);
+    refused(subnav().args(["ice", "simulate", "--distance-m", "1e9"]), &["--distance-m", "10000"]);
+    // A scenario file is checked field by field (`Scenario::validate`).
+    let sc = d.join("dive.json");
+    assert!(subnav().args(["sim", "--duration-s", "20", "--out"]).arg(&sc).status().unwrap().success());
+    let text = std::fs::read_to_string(&sc).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["position_fixes"]["period_s"] = serde_json::json!(1e-20);
+    std::fs::write(&sc, v.to_string()).unwrap();
+    refused(subnav().args(["run", "--native"]).arg(&sc), &["dive.json", "position_fixes.period_s"]);
+    v["position_fixes"]["period_s"] = serde_json::json!(5.0);
+    v["survey"]["speed_mps"] = serde_json::json!(1e300);
+    std::fs::write(&sc, v.to_string()).unwrap();
+    refused(subnav().args(["run", "--native"]).arg(&sc), &["survey.speed_mps"]);
+}
+
+/// A.4: inputs that hung, now refused (or ended at their deadline).
+#[test]
+fn hangs_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let sc = dir.path().join("dive.json");
+    assert!(subnav().args(["sim", "--duration-s", "20", "--out"]).arg(&sc).status().unwrap().success());
+    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&sc).unwrap()).unwrap();
+    v["survey"]["speed_mps"] = serde_json::json!(-1.0);
+    std::fs::write(&sc, v.to_string()).unwrap();
+    refused(subnav().args(["run", "--native"]).arg(&sc), &["survey.speed_mps must be > 0"]);
+    refused(
+        subnav().args(["compass", "simulate", "--min-elevation-deg", "70", "--max-elevation-deg", "20"]),
+        &["--min-elevation-deg", "below --max-elevation-deg"],
+    );
+    refused(subnav().args(["compass", "simulate", "--min-elevation-deg", "95"]), &["--min-elevation-deg", "0..=90"]);
+    refused(subnav().args(["compass", "simulate", "--min-elevation-deg", "nan"]), &["--min-elevation-deg"]);
+    refused(subnav().args(["compass", "geolocate", "--track-s", "10000000000000"]), &["--track-s"]);
+
+    // A peer that accepts and never sends: `record --duration-s` ends the recording on time
+    // (nothing recorded: an error, no file), and `decode --tcp` ends at its idle timeout.
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let holder = std::thread::spawn(move || {
+        let mut held = vec![];
+        for _ in 0..2 {
+            if let Ok((s, _)) = l.accept() {
+                held.push(s);
+            }
+        }
+        std::thread::sleep(Duration::from_secs(20));
+    });
+    let rec = dir.path().join("silent.snrec");
+    let t0 = Instant::now();
+    refused(subnav().args(["record", "--tcp", &addr, "--duration-s", "0.5", "-o"]).arg(&rec), &["sent no data", "not written"]);
+    assert!(t0.elapsed() < Duration::from_secs(10), "record took {:?}", t0.elapsed());
+    assert!(!rec.exists());
+    assert_eq!(files_in(dir.path()), ["dive.json"]);
+    let t0 = Instant::now();
+    refused(subnav().args(["decode", "--tcp", &addr, "--idle-timeout-s", "0.5"]), &["no data", "idle timeout"]);
+    assert!(t0.elapsed() < Duration::from_secs(10), "decode took {:?}", t0.elapsed());
+    drop(holder);
+}
+
+/// A.5: a failed run leaves an old output alone; an output that names an input is refused.
+#[test]
+fn data_is_not_destroyed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A peer that closes at once: the old recording stays, byte for byte.
+    let old = d.join("existing.snrec");
+    std::fs::write(&old, b"an old recording").unwrap();
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let closer = std::thread::spawn(move || drop(l.accept()));
+    refused(subnav().args(["record", "--tcp", &addr, "-o"]).arg(&old), &["sent no data"]);
+    closer.join().unwrap();
+    assert_eq!(std::fs::read(&old).unwrap(), b"an old recording");
+    assert_eq!(files_in(d), ["existing.snrec"], "a temporary file was left behind");
+
+    // Outputs that are inputs.
+    let sc = d.join("scenario.json");
+    assert!(subnav().args(["sim", "--duration-s", "5", "--out"]).arg(&sc).status().unwrap().success());
+    let sc_text = std::fs::read(&sc).unwrap();
+    refused(subnav().args(["run", "--native"]).arg(&sc).arg("--record").arg(&sc), &["--record", "also an input"]);
+    refused(
+        subnav().args(["run", "--native"]).arg(&sc).arg("--truth").arg(d.join(".").join("scenario.json")),
+        &["--truth", "also an input"],
+    );
+    assert_eq!(std::fs::read(&sc).unwrap(), sc_text);
+    let rec = d.join("r.snrec");
+    let mut w = subnav_link::record::Writer::new(Vec::new(), &subnav_link::record::Meta::new("test")).unwrap();
+    w.chunk(subnav_link::record::Stream::Uplink, 1, b"\x00").unwrap();
+    std::fs::write(&rec, w.into_inner()).unwrap();
+    let rec_bytes = std::fs::read(&rec).unwrap();
+    refused(subnav().arg("export").arg(&rec).arg("--mcap").arg(&rec), &["--mcap", "also an input"]);
+    assert_eq!(std::fs::read(&rec).unwrap(), rec_bytes);
+    let train = d.join("train.csv");
+    std::fs::write(&train, "1,2,0\n2,3,0\n5,5,1\n6,5,1\n").unwrap();
+    refused(subnav().args(["lmnn", "fit", "--train"]).arg(&train).arg("--out").arg(&train), &["--out", "also an input"]);
+    assert_eq!(std::fs::read_to_string(&train).unwrap(), "1,2,0\n2,3,0\n5,5,1\n6,5,1\n");
+    let log = d.join("log.csv");
+    std::fs::write(&log, "x\n").unwrap();
+    refused(subnav().args(["filter", "replay"]).arg(&log).arg("--out").arg(&log), &["--out", "also an input"]);
+    assert_eq!(std::fs::read_to_string(&log).unwrap(), "x\n");
+}
+
+/// A.5: one flipped bit in a recording's header costs the header, not the recording.
+#[test]
+fn a_flipped_bit_in_the_header_keeps_the_chunks() {
+    use subnav_link::record::{Meta, Stream, Writer};
+    let dir = tempfile::tempdir().unwrap();
+    let mut w = Writer::new(Vec::new(), &Meta::new("test")).unwrap();
+    use subnav_wire::{Fault, FaultKind, FaultSource, Uplink};
+    let mut buf = [0u8; subnav_wire::MAX_UPLINK_FRAME];
+    let msg = Uplink::Fault(Fault { t_us: 5, source: FaultSource::Depth, kind: FaultKind::BusNack, count: 1 });
+    let frame = subnav_wire::frame::encode(&msg, &mut buf).unwrap().to_vec();
+    for i in 0..20 {
+        w.chunk(Stream::Uplink, i, &frame).unwrap();
+    }
+    let mut bytes = w.into_inner();
+    bytes[20] ^= 0x08; // inside the metadata JSON
+    let rec = dir.path().join("flipped.snrec");
+    std::fs::write(&rec, &bytes).unwrap();
+    let (o, e) = run(subnav().args(["--format", "json", "decode", "--file"]).arg(&rec));
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains("header is damaged"), "{e}");
+    let faults = String::from_utf8_lossy(&o.stdout).lines().filter(|l| l.contains("BusNack")).count();
+    assert_eq!(faults, 20, "{}", String::from_utf8_lossy(&o.stdout));
+}
+
+/// C: files that are, or were, recordings are never decoded as raw uplink bytes.
+#[test]
+fn damaged_recordings_are_named_not_decoded_as_raw_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.snrec");
+    std::fs::File::create(&empty).unwrap();
+    refused(subnav().args(["decode", "--file"]).arg(&empty), &["empty.snrec", "is empty"]);
+    let cut = dir.path().join("cut.snrec");
+    std::fs::write(&cut, &subnav_link::record::MAGIC[..5]).unwrap();
+    refused(subnav().args(["decode", "--file"]).arg(&cut), &["cut.snrec", "truncated"]);
+    let mut w = subnav_link::record::Writer::new(Vec::new(), &subnav_link::record::Meta::new("test")).unwrap();
+    w.chunk(subnav_link::record::Stream::Uplink, 1, b"\x00").unwrap();
+    let crlf: Vec<u8> = w.into_inner().iter().copied().filter(|&b| b != b'\r').collect();
+    let mangled = dir.path().join("mangled.snrec");
+    let mut f = std::fs::File::create(&mangled).unwrap();
+    f.write_all(&crlf).unwrap();
+    refused(subnav().args(["decode", "--file"]).arg(&mangled), &["mangled.snrec", "text-mode copy"]);
+}
+
+/// A PNG of a few dozen bytes whose header declares `w` x `h` pixels (no real image data).
+pub fn png_declaring(w: u32, h: u32) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in bytes {
+            c ^= u32::from(b);
+            for _ in 0..8 {
+                c = if c & 1 != 0 { (c >> 1) ^ 0xEDB8_8320 } else { c >> 1 };
+            }
+        }
+        !c
+    }
+    let mut v = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut chunk = |kind: &[u8], data: &[u8]| {
+        v.extend_from_slice(&(data.len() as u32).to_be_bytes());
+        let mut body = kind.to_vec();
+        body.extend_from_slice(data);
+        v.extend_from_slice(&body);
+        v.extend_from_slice(&crc32(&body).to_be_bytes());
+    };
+    let mut ihdr = w.to_be_bytes().to_vec();
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 0, 0, 0, 0]); // 8-bit grey
+    chunk(b"IHDR", &ihdr);
+    chunk(b"IDAT", &[0x78, 0x9c, 0x03, 0x00]); // the decoder reads the header up to here
+    chunk(b"IEND", &[]);
+    v
+}
+
+/// A.3 and B: images and tables have size limits; table rows are not silently dropped and
+/// features that overflow are refused instead of writing a model `eval` cannot read.
+#[test]
+fn images_and_tables_have_limits() {
+    let dir = tempfile::tempdir().unwrap();
+    let big = dir.path().join("big.png");
+    std::fs::write(&big, png_declaring(60_000, 60_000)).unwrap();
+    refused(subnav().arg("phasecorr").arg(&big).arg(&big), &["big.png", "60000 x 60000", "16384"]);
+
+    let out = dir.path().join("m.json");
+    let typo = dir.path().join("typo.csv");
+    std::fs::write(&typo, "1,2.O,0\n1,2,0\n2,3,0\n2,2,0\n5,5,1\n6,5,1\n5,6,1\n6,6,1\n").unwrap();
+    refused(subnav().args(["lmnn", "fit", "--train"]).arg(&typo).arg("--out").arg(&out), &["typo.csv", "line 1"]);
+    let huge = dir.path().join("huge.csv");
+    std::fs::write(&huge, "1e300,0\n-1e300,0\n1e300,0\n-1e300,0\n1e300,1\n-1e300,1\n1e300,1\n-1e300,1\n").unwrap();
+    refused(subnav().args(["lmnn", "fit", "--train"]).arg(&huge).arg("--out").arg(&out), &["too large"]);
+    let many = dir.path().join("many.csv");
+    let rows: String = (0..10_001).map(|i| format!("{},{}\n", i, i % 2)).collect();
+    std::fs::write(&many, rows).unwrap();
+    refused(subnav().args(["lmnn", "fit", "--train"]).arg(&many).arg("--out").arg(&out), &["10001 rows", "10000"]);
+    assert!(!out.exists());
+}
+
+/// A.3, A.5: a nav row far away (a grid of 4.8e17 bytes) and a sounding at 1e300 m (exit 0
+/// with empty grids) are refused with their bound.
+#[test]
+fn bathy_surveys_have_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let nav = dir.path().join("nav.csv");
+    let snd = dir.path().join("soundings.csv");
+    let nav_rows = "t_s,north_m,east_m,depth_m,heading_rad\n0,0,0,10,0\n10,10,0,10,0\n20,1e15,0,10,0\n";
+    std::fs::write(&nav, nav_rows).unwrap();
+    let pings: String = (0..20).map(|t| format!("{t},-0.3,20\n{t},0,18\n{t},0.3,20\n")).collect();
+    std::fs::write(&snd, format!("t_s,beam_angle_rad,range_m\n{pings}")).unwrap();
+    let run_on = |out: &str| {
+        let mut c = subnav();
+        c.args(["bathy", "run", "--altitude-m", "18", "--no-plots", "--soundings"])
+            .arg(&snd)
+            .arg("--nav")
+            .arg(&nav)
+            .arg("--out")
+            .arg(dir.path().join(out));
+        c
+    };
+    refused(&mut run_on("a"), &["the survey spans", "cells"]);
+    std::fs::write(&nav, nav_rows.replace("1e15", "20")).unwrap();
+    std::fs::write(&snd, format!("t_s,beam_angle_rad,range_m\n0,0.1,1e300\n{pings}")).unwrap();
+    refused(&mut run_on("b"), &["soundings.csv", "range_m must be in 0..=12000"]);
+}
+
+/// B: numbers that gave silently wrong results now have ranges; outputs that said nothing
+/// useful are errors.
+#[test]
+fn silent_wrong_results_are_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (flag, v) in [("--temp-c", "-273.15"), ("--temp-c", "-300"), ("--pressure-hpa", "-1"), ("--elevation-m", "-1e6")] {
+        refused(subnav().args(["sun", "--time", "2026-06-21T12:00:00Z", "--lat", "44", "--lon", "-2", flag, v]), &[flag]);
+    }
+    for (flag, v) in [("--depth-m", "-5"), ("--depth-m", "nan"), ("--draws", "0")] {
+        refused(subnav().args(["compass", "simulate", flag, v]), &[flag]);
+    }
+    for (flag, v) in [("--trials", "0"), ("--track-s", "0"), ("--interval-s", "0")] {
+        refused(subnav().args(["compass", "geolocate", flag, v]), &[flag]);
+    }
+    for (flag, v) in [("--every-s", "0"), ("--every-s", "-1"), ("--every-s", "nan")] {
+        refused(subnav().args(["filter", "replay", "log.csv", "--out", "o.csv", flag, v]), &[flag]);
+    }
+    for v in ["0", "-1", "nan"] {
+        refused(subnav().args(["filter", "monte-carlo", "--duration-s", v]), &["--duration-s"]);
+        refused(subnav().args(["report", "simulate", "--duration-s", v, "--out"]).arg(d.join("r")), &["--duration-s"]);
+    }
+    refused(subnav().args(["sim", "--leg-m", "inf", "--out"]).arg(d.join("s.json")), &["leg_m"]);
+    refused(subnav().args(["sim", "--imu-nack", "-5,-1", "--out"]).arg(d.join("s.json")), &["faults.imu_nack_s", "0 <= start"]);
+    // Uniform or tiny images have no shift to measure.
+    let grey_png = |path: &Path, side: u32| {
+        let mut e = png::Encoder::new(std::fs::File::create(path).unwrap(), side, side);
+        e.set_color(png::ColorType::Grayscale);
+        e.set_depth(png::BitDepth::Eight);
+        e.write_header().unwrap().write_image_data(&vec![0u8; (side * side) as usize]).unwrap();
+    };
+    let black = d.join("black.png");
+    grey_png(&black, 64);
+    refused(subnav().arg("phasecorr").arg(&black).arg(&black), &["black.png", "uniform"]);
+    let tiny = d.join("tiny.png");
+    grey_png(&tiny, 1);
+    refused(subnav().arg("phasecorr").arg(&tiny).arg(&tiny), &["tiny.png", "at least 8"]);
+}
+
+/// C: SVG figures failed on every report (the font was registered only for PNG) and left
+/// `trajectory.svg` behind; now they are drawn, and no temporary file stays.
+#[test]
+fn svg_reports_are_drawn() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rep");
+    let (o, e) = run(subnav().args(["report", "simulate", "--duration-s", "30", "--images", "svg", "--out"]).arg(&out));
+    assert!(o.status.success(), "{e}");
+    let names = files_in(&out);
+    assert!(names.iter().any(|n| n == "trajectory.svg"), "{names:?}");
+    assert!(names.iter().all(|n| !n.starts_with('.')), "temporary files left: {names:?}");
+}
+
+/// C: a recording whose header names a directory, a text file or `/dev/zero` as its ELF: the
+/// error names the ELF and that it came from the header (and `/dev/zero` is not read until
+/// out of memory).
+#[test]
+fn a_bad_elf_in_the_header_is_named() {
+    use subnav_link::record::{Meta, Stream, Writer};
+    let dir = tempfile::tempdir().unwrap();
+    let text = dir.path().join("notes.txt");
+    std::fs::write(&text, "not an ELF\n").unwrap();
+    for (elf, why) in
+        [(dir.path().to_path_buf(), "not a regular file"), (text, "not an ELF file"), ("/dev/zero".into(), "not a regular file")]
+    {
+        let mut meta = Meta::new("test");
+        meta.elf = Some(elf.display().to_string());
+        let mut w = Writer::new(Vec::new(), &meta).unwrap();
+        w.chunk(Stream::Defmt, 1, b"\x01\x02").unwrap();
+        let rec = dir.path().join("r.snrec");
+        std::fs::write(&rec, w.into_inner()).unwrap();
+        let elf_s = elf.display().to_string();
+        refused(subnav().args(["decode", "--file"]).arg(&rec), &[&elf_s, why, "header of"]);
+        refused(subnav().arg("export").arg(&rec).arg("--csv").arg(dir.path().join("csv")), &[&elf_s, why, "header of"]);
+    }
+}
+
+/// B: a truth that does not overlap the recording gave no statistics and no warning.
+#[test]
+fn a_truth_that_does_not_overlap_is_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rep");
+    let (o, e) = run(subnav().args(["report", "simulate", "--duration-s", "30", "--out"]).arg(&out));
+    assert!(o.status.success(), "{e}");
+    let truth = dir.path().join("late_truth.csv");
+    std::fs::write(&truth, "t_s,n_m,e_m,d_m,yaw_rad\n5000,0,0,0,0\n5001,0,0,0,0\n").unwrap();
+    let (o, e) = run(subnav()
+        .args(["report", "recording"])
+        .arg(out.join("dive.snrec"))
+        .arg("--truth")
+        .arg(&truth)
+        .arg("--out")
+        .arg(dir.path().join("r2")));
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains("does not overlap"), "{e}");
+}
+
+/// B: `ice run --input` on a data set with a camera of focal length, baseline or pixel noise 0
+/// or a non-rotation `rot_bc` ("0 features used"), a still period longer than the data, empty
+/// tracks or IMU samples 1 ns apart ("0 poses", exit 0): errors naming the file and the bound.
+#[test]
+fn ice_data_sets_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("ds");
+    let (o, e) = run(subnav().args(["ice", "simulate", "--distance-m", "20", "--write"]).arg(&ds));
+    assert!(o.status.success(), "{e}");
+    let cam_text = std::fs::read_to_string(ds.join("camera.json")).unwrap();
+    let cam: serde_json::Value = serde_json::from_str(&cam_text).unwrap();
+    let ds_s = ds.display().to_string();
+    for (field, v, needle) in [
+        ("focal_px", serde_json::json!(0.0), "focal_px must be > 0"),
+        ("baseline_m", serde_json::json!(0.0), "baseline_m must be > 0"),
+        ("sigma_px", serde_json::json!(-1.0), "sigma_px must be > 0"),
+        ("rot_bc", serde_json::json!([2.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]), "rot_bc must be a rotation"),
+    ] {
+        let mut c = cam.clone();
+        c[field] = v;
+        std::fs::write(ds.join("camera.json"), c.to_string()).unwrap();
+        refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &[&ds_s, needle]);
+    }
+    std::fs::write(ds.join("camera.json"), &cam_text).unwrap();
+    std::fs::write(ds.join("meta.json"), "{\"still_s\": 1e9}").unwrap();
+    refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["still_s must be in"]);
+    std::fs::write(ds.join("meta.json"), "{\"still_s\": 2.0}").unwrap();
+    let imu = std::fs::read_to_string(ds.join("imu.csv")).unwrap();
+    let mut lines: Vec<String> = imu.lines().map(String::from).collect();
+    lines[2] = lines[2].replacen("0.005000", "0.000000001", 1);
+    std::fs::write(ds.join("imu.csv"), lines.join("\n") + "\n").unwrap();
+    refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["imu.csv", "closer than 10 us"]);
+    std::fs::write(ds.join("imu.csv"), &imu).unwrap();
+    std::fs::write(ds.join("tracks.csv"), "t_s,frame_id,feature_id,ul,vl,ur,vr\n").unwrap();
+    refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["tracks.csv"]);
+}
