@@ -378,6 +378,22 @@ impl Scenario {
             within("dvl.truncate_probability", d.truncate_probability, 0.0, 1.0)?;
             window("dvl.silent_s", d.silent_s)?;
         }
+        anyhow::ensure!(s.cross_legs <= 1001, "survey.cross_legs must be at most 1001, got {}", s.cross_legs);
+        if let Some(c) = &self.camera {
+            within("camera.latency_s", c.latency_s, 0.0, 10.0)?;
+            window("camera.blackout_s", c.blackout_s)?;
+            within("camera.drop_probability", c.drop_probability, 0.0, 1.0)?;
+            within("camera.duplicate_probability", c.duplicate_probability, 0.0, 1.0)?;
+            within("camera.reorder_probability", c.reorder_probability, 0.0, 1.0)?;
+            within("camera.far_image_probability", c.far_image_probability, 0.0, 1.0)?;
+            within("camera.far_image_offset_m", c.far_image_offset_m, 0.0, 10_000.0)?;
+            anyhow::ensure!(
+                self.seafloor_depth_m() > s.depth_m,
+                "the seafloor ({} m) must be below the survey depth ({} m) for the camera",
+                self.seafloor_depth_m(),
+                s.depth_m
+            );
+        }
         Ok(())
     }
 

@@ -47,3 +47,24 @@ fn every_bad_field_is_refused_with_its_name() {
         assert!(e.contains(field), "{field}: {e}");
     }
 }
+
+#[test]
+fn the_main_job_is_valid_and_bad_camera_fields_are_refused() {
+    let mut sc = Scenario::map_survey(1);
+    sc.validate().unwrap();
+    for (name, edit) in [
+        ("camera.latency_s", Box::new(|c: &mut subnav_sil::CameraPlan| c.latency_s = -1.0) as Box<dyn Fn(&mut subnav_sil::CameraPlan)>),
+        ("camera.blackout_s", Box::new(|c| c.blackout_s = Some((10.0, 5.0)))),
+        ("camera.drop_probability", Box::new(|c| c.drop_probability = f64::NAN)),
+        ("camera.far_image_probability", Box::new(|c| c.far_image_probability = 2.0)),
+    ] {
+        let mut bad = sc.clone();
+        if let Some(c) = bad.camera.as_mut() {
+            edit(c);
+        }
+        let e = bad.validate().expect_err(name).to_string();
+        assert!(e.contains(name), "{name}: {e}");
+    }
+    sc.survey.cross_legs = 5000;
+    assert!(sc.validate().unwrap_err().to_string().contains("survey.cross_legs"));
+}
