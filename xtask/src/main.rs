@@ -41,7 +41,7 @@ pub fn run(cmd: &mut Command) -> Result<()> {
 fn usage() -> &'static str {
     "usage: cargo xtask <test|run|build|size|setup> [options]
   test                 install missing tools, build firmware, size check, all tests
-  run [-- ARGS]        build the QEMU firmware and run the closed-loop dive (`subnav run`, 900 s, report in
+  run [-- ARGS]        build the QEMU firmware and run the closed-loop dive (`subnav run`, 30 min, report in
                        target/subnav-run; ARGS go to subnav run, `-- --raw` shows raw telemetry lines instead)
   build [--board B]    build firmware: B = qemu | stm32f4 | all (default all)
   size                 flash/RAM report per board and the no-heap check
@@ -107,9 +107,6 @@ fn real_main() -> Result<()> {
             } else {
                 // The main job: the closed-loop dive under QEMU with its report.
                 c.args(["run", "--elf"]).arg(&elf);
-                if !extra.iter().any(|a| a.starts_with("--duration-s")) {
-                    c.args(["--duration-s", &RUN_DURATION_S.to_string()]);
-                }
                 if !extra.iter().any(|a| a.starts_with("--report")) {
                     c.arg("--report").arg(root().join("target").join("subnav-run"));
                 }
@@ -127,10 +124,6 @@ fn real_main() -> Result<()> {
         other => bail!("unknown command {other:?}\n{}", usage()),
     }
 }
-
-/// Length of the dive `cargo xtask run` shows (s of the 30-minute main-job survey: long enough
-/// to cross the first block of the survey and close loops on it; about 4 minutes under QEMU).
-const RUN_DURATION_S: u32 = 900;
 
 fn flag_value<'a>(args: &'a [String], flag: &str) -> Option<&'a str> {
     args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).map(String::as_str)
