@@ -67,6 +67,11 @@ fn wrap_deg(x: f64) -> f64 {
     (x + 180.0).rem_euclid(360.0) - 180.0
 }
 
+/// Whether [`evaluate`] reads this message (runs that are not recorded keep only these).
+pub fn scored(m: &Uplink) -> bool {
+    matches!(m, Uplink::Nav(_) | Uplink::Raw(subnav_wire::RawSample::Depth(_)) | Uplink::Compass(_) | Uplink::Fault(_))
+}
+
 /// What a live display shows during a run (from the latest navigation solution).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LiveStatus {
@@ -132,6 +137,9 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
             if let Some(map) = &map {
                 map.on_uplink(&m);
+            }
+            if !scored(&m) {
+                return;
             }
             if let (Uplink::Nav(n), Some(p)) = (&m, opts.progress) {
                 p(&LiveStatus::new(n, map.as_ref()));

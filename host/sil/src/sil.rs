@@ -57,6 +57,9 @@ impl ByteLink for InProcessLink {
 
 /// Telemetry decoded as it is written (and kept as frames, stamped with firmware time).
 struct Collect {
+    /// Keep every frame and message (for a recording or a replay); otherwise only the messages
+    /// the scoring reads ([`crate::dive::scored`]), so a day-long dive fits in memory.
+    keep_all: bool,
     map: Option<MapLoop>,
     last_nav: Option<subnav_wire::NavSolution>,
     dec: FrameDecoder<MAX_UPLINK_FRAME>,
@@ -68,7 +71,9 @@ struct Collect {
 
 impl TelemetrySink for Collect {
     fn write_frame(&mut self, frame: &[u8]) -> bool {
-        self.frames.push((self.now_us, frame.to_vec()));
+        if self.keep_all {
+            self.frames.push((self.now_us, frame.to_vec()));
+        }
         for &b in frame {
             match self.dec.push::<Uplink>(b) {
                 Decoded::Message(m) => {
@@ -78,7 +83,9 @@ impl TelemetrySink for Collect {
                     if let Some(map) = &self.map {
                         map.on_uplink(&m);
                     }
-                    self.msgs.push(m)
+                    if self.keep_all || crate::dive::scored(&m) {
+                        self.msgs.push(m)
+                    }
                 }
                 Decoded::Corrupt(_) => self.corrupt += 1,
                 Decoded::Pending => {}
@@ -101,11 +108,30 @@ pub struct NativeRun {
     pub map: Option<MapLoopReport>,
 }
 
-/// Run the scenario natively for `sc.duration_s` and return the telemetry.
+/// Run the scenario natively for `sc.duration_s` and return the telemetry (every frame and
+/// message: what a recording or a replay needs).
 pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>) -> NativeRun {
+    run_native_keeping(sc, progress, true)
+}
+
+/// As [`run_native`], keeping only the messages the scoring reads and no frames (bounded by the
+/// navigation rate, not the raw-sample rate: a day-long dive in a few hundred MB).
+pub fn run_native_scored(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>) -> NativeRun {
+    run_native_keeping(sc, progress, false)
+}
+
+fn run_native_keeping(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>, keep_all: bool) -> NativeRun {
     let map = sc.map_loop();
-    let mut sink =
-        Collect { map: map.clone(), last_nav: None, dec: FrameDecoder::new(), msgs: Vec::new(), corrupt: 0, now_us: 0, frames: Vec::new() };
+    let mut sink = Collect {
+        keep_all,
+        map: map.clone(),
+        last_nav: None,
+        dec: FrameDecoder::new(),
+        msgs: Vec::new(),
+        corrupt: 0,
+        now_us: 0,
+        frames: Vec::new(),
+    };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
     app.boot(0, &mut sink);
@@ -188,7 +214,7 @@ impl NativeRun {
 /// Run natively and evaluate against the truth (exit code `Some(0)`: the native run has no
 /// process to fail; a panic would unwind through the caller).
 pub fn run_dive_native(sc: &Scenario) -> DiveResult {
-    let run = run_native(sc, None);
+    let run = run_native_scored(sc, None);
     let mut r = evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
     r.map = run.map;
     r

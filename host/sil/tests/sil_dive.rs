@@ -53,3 +53,19 @@ fn with_the_dvl_alone_the_position_holds_and_stays_consistent() {
         assert!(r.horizontal_rms_err_m <= 3.0, "seed {seed}: horizontal RMS {} m", r.horizontal_rms_err_m);
     }
 }
+
+/// A run that is not recorded keeps only what the scoring reads (issue 23: a day-long native
+/// dive took 4 GB for the raw samples and frames it never used), and scores the same.
+#[test]
+fn an_unrecorded_run_keeps_only_the_scored_messages_and_scores_the_same() {
+    let sc = subnav_sil::Scenario { duration_s: 60.0, ..subnav_sil::Scenario::default() };
+    let full = subnav_sil::sil::run_native(&sc, None);
+    let lean = subnav_sil::sil::run_native_scored(&sc, None);
+    assert!(lean.frames.is_empty());
+    assert!(lean.messages.iter().all(subnav_sil::dive::scored));
+    assert!(lean.messages.len() * 5 < full.messages.len(), "{} of {}", lean.messages.len(), full.messages.len());
+    let score = |r: &subnav_sil::sil::NativeRun| {
+        serde_json::to_string(&subnav_sil::dive::evaluate(&sc, &r.messages, Some(0), r.corrupt_frames, r.bus_transactions)).unwrap()
+    };
+    assert_eq!(score(&lean), score(&full));
+}

@@ -18,7 +18,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use super::Format;
 use subnav_sil::Scenario;
 use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_csv};
-use subnav_sil::sil::run_native;
+use subnav_sil::sil::{run_native, run_native_scored};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -117,7 +117,7 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     let mut ok = true;
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
-        let run = run_native(&sc, None);
+        let run = run_native_scored(&sc, None);
         let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
         r.map = run.map;
         ok &= r.nonfinite_values == 0;
@@ -204,7 +204,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         ));
     };
     let result: DiveResult = if args.native {
-        let run = run_native(&sc, Some(&progress));
+        let run = if record.is_some() { run_native(&sc, Some(&progress)) } else { run_native_scored(&sc, Some(&progress)) };
         if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;
         }
