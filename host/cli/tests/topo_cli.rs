@@ -126,4 +126,38 @@ fn map_simulate_writes_exports_and_build_reads_them() {
         "line 2",
     );
     fails_cleanly(&subnav(&["map", "simulate", "--laps=-1"]), "laps");
+
+    // Issue 23: an image far outside the navigation's span is skipped with a warning (it used to
+    // stretch the survey to 1.8e13 s), a NaN training time is refused, and navigation that
+    // misses every image is an error naming both spans (it was "not enough node samples").
+    std::fs::remove_file(img.join("123.png")).unwrap();
+    let first = std::fs::read_dir(&img).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "png")).unwrap();
+    std::fs::copy(&first, img.join("18446744073709551615.png")).unwrap();
+    let nav = img.join("nav.csv");
+    let o = subnav(&["map", "build", "--nav", nav.to_str().unwrap(), "--images", img.to_str().unwrap(), "--quiet", "--format", "json"]);
+    ok(&o);
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("1 of")
+            && String::from_utf8_lossy(&o.stderr).contains("outside the navigation's time span")
+    );
+    fails_cleanly(
+        &subnav(&["map", "build", "--nav", nav.to_str().unwrap(), "--images", img.to_str().unwrap(), "--train-after-s", "nan"]),
+        "--train-after-s",
+    );
+    let shifted: String = std::fs::read_to_string(&nav)
+        .unwrap()
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == 0 {
+                format!("{l}\n")
+            } else {
+                let (t, rest) = l.split_once(',').unwrap();
+                format!("{},{rest}\n", t.parse::<f64>().unwrap() + 10_000.0)
+            }
+        })
+        .collect();
+    let far = d.path().join("far_nav.csv");
+    std::fs::write(&far, shifted).unwrap();
+    fails_cleanly(&subnav(&["map", "build", "--nav", far.to_str().unwrap(), "--images", img.to_str().unwrap()]), "none of the");
 }

@@ -177,6 +177,9 @@ fn nav_at(nav: &[(f64, [f64; 3])], t: f64) -> [f64; 3] {
     [0, 1, 2].map(|k| a.1[k] + u * (b.1[k] - a.1[k]))
 }
 
+/// How far outside the navigation's time span an image may be and still get its position (s).
+const NAV_MARGIN_S: f64 = 1.0;
+
 /// Frames from a navigation log and a directory of `<t_us>.png` mosaics. Unreadable images are
 /// reported and skipped (their frame still carries the displacement).
 fn frames_from_dir(nav: &[(f64, [f64; 3])], dir: &Path, warn: &mut dyn FnMut(String)) -> Result<(Vec<Frame>, [f64; 2])> {
@@ -194,6 +197,25 @@ fn frames_from_dir(nav: &[(f64, [f64; 3])], dir: &Path, warn: &mut dyn FnMut(Str
     imgs.sort();
     if imgs.is_empty() {
         bail!("no <t_us>.png mosaics in {}", dir.display());
+    }
+    // Images outside the navigation's time span have no position: skipped (never clamped to
+    // the span's ends), and said so; none inside is an error naming both spans.
+    let (n0, n1) = (nav.first().map_or(0.0, |p| p.0), nav.last().map_or(0.0, |p| p.0));
+    let (i0, i1) = (imgs[0].0 as f64 * 1e-6, imgs[imgs.len() - 1].0 as f64 * 1e-6);
+    let total = imgs.len();
+    imgs.retain(|(t, _)| (n0 - NAV_MARGIN_S..=n1 + NAV_MARGIN_S).contains(&(*t as f64 * 1e-6)));
+    if imgs.is_empty() {
+        bail!(
+            "none of the {total} images in {} (times {i0:.3} to {i1:.3} s) falls within the navigation's time span ({n0:.3} to {n1:.3} s): the image names must be sensor-head time in microseconds",
+            dir.display()
+        );
+    }
+    if imgs.len() < total {
+        warn(format!(
+            "{} of {total} images in {} are outside the navigation's time span ({n0:.3} to {n1:.3} s) and were skipped",
+            total - imgs.len(),
+            dir.display()
+        ));
     }
     let start = nav_at(nav, imgs[0].0 as f64 * 1e-6);
     let mut prev = start;
@@ -249,6 +271,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             let navs = read_nav(&nav)?;
             let (frames, start) = frames_from_dir(&navs, &images, &mut |w| eprintln!("warning: {w}"))?;
             let span = frames.last().map_or(0.0, |f| f.t_s) - frames.first().map_or(0.0, |f| f.t_s);
+            if let Some(t) = train_after_s.filter(|t| !(t.is_finite() && *t >= 0.0 && *t <= span)) {
+                bail!("--train-after-s {t}: must be in [0, {span:.3}] s (the images' span after the first image)");
+            }
             let cfg = SurveyConfig { train_after_s: train_after_s.unwrap_or(span / 2.0), ..SurveyConfig::default() };
             let pb = bar(quiet, "mapping");
             let res = survey::build(&cfg, start, &frames, &mut |f| pb.set_position((f * 1000.0) as u64))?;
