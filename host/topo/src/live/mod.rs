@@ -863,9 +863,7 @@ impl LiveMapper {
                 let d = drift_cov(&p1, &sym(n.cov_ne_m2), cfg.min_drift_m2);
                 let m = x1 - Vector2::new(n.pos_ned_m[0], n.pos_ned_m[1]);
                 let s = d + v;
-                // Largest eigenvalue of the symmetric 2x2 innovation covariance.
-                let (tr, det) = (s[(0, 0)] + s[(1, 1)], s[(0, 0)] * s[(1, 1)] - s[(0, 1)] * s[(1, 0)]);
-                let lam_max = 0.5 * tr + (0.25 * tr * tr - det).max(0.0).sqrt();
+                let ([_, lam_max], _) = eig_sym(&s);
                 if lam_max > cfg.max_gate_sigma_m.powi(2) {
                     f64::MAX // too wide: fails the gate, still an appearance-only candidate
                 } else {
