@@ -29,6 +29,8 @@ pub use nalgebra;
 
 pub mod factors;
 pub mod gating;
+pub mod kitti;
+pub mod kitti_run;
 pub mod log;
 pub mod montecarlo;
 pub mod preintegration;

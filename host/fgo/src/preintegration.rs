@@ -62,9 +62,14 @@ impl ImuParams {
         Matrix3::identity() * self.integration_sigma.powi(2)
     }
     pub fn validate(&self) -> Result<(), FgoError> {
-        let all = [self.acc_noise_density, self.gyro_noise_density, self.integration_sigma, self.acc_bias_rw, self.gyro_bias_rw];
-        if !self.gravity_enu_mps2.iter().all(|g| g.is_finite()) || !all.iter().all(|x| x.is_finite() && *x > 0.0) {
-            return Err(FgoError::Input(format!("IMU parameters must be finite and noise sigmas > 0: {self:?}")));
+        // The integration sigma may be 0 (GTSAM's KITTI metadata): the accelerometer noise
+        // keeps the position block of the preintegrated covariance positive definite.
+        let all = [self.acc_noise_density, self.gyro_noise_density, self.acc_bias_rw, self.gyro_bias_rw];
+        if !self.gravity_enu_mps2.iter().all(|g| g.is_finite())
+            || !all.iter().all(|x| x.is_finite() && *x > 0.0)
+            || !(self.integration_sigma.is_finite() && self.integration_sigma >= 0.0)
+        {
+            return Err(FgoError::Input(format!("IMU parameters must be finite, noise sigmas > 0 (integration >= 0): {self:?}")));
         }
         Ok(())
     }

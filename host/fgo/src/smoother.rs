@@ -241,6 +241,10 @@ impl Smoother {
     fn optimize_and_marginalize(&mut self) -> Result<(), FgoError> {
         let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
         solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
+        self.marginalize_and_output()
+    }
+
+    fn marginalize_and_output(&mut self) -> Result<(), FgoError> {
         let newest = *self.times.last().unwrap_or(&0.0);
         while self.times.len() > 2 && self.times[1] < newest - self.cfg.lag_s {
             self.marginalize_oldest()?;
@@ -314,6 +318,24 @@ impl Smoother {
             Err(k) => k.saturating_sub(1),
         };
         self.imu.get(k).map_or(Vector3::zeros(), |s| Vector3::from(s.gyro_radps))
+    }
+
+    /// A node at `t` with no observation (IMU only), e.g. at the time of a held-out fix to be
+    /// scored: no optimisation (the new node's IMU factor is at zero residual), then the
+    /// window is marginalised as after an update and the node's prediction is the real-time
+    /// output. `false` if `t` is older than the window (nothing done).
+    pub fn add_node(&mut self, t: f64) -> Result<bool, FgoError> {
+        let start = Instant::now();
+        let cpu0 = thread_cpu_s();
+        if self.node_at(t)?.is_none() {
+            return Ok(false);
+        }
+        self.marginalize_and_output()?;
+        self.latency_s.push(start.elapsed().as_secs_f64());
+        if let (Some(a), Some(b)) = (cpu0, thread_cpu_s()) {
+            self.cpu_s.push(b - a);
+        }
+        Ok(true)
     }
 
     /// One DVL update.

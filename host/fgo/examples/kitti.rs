@@ -1,0 +1,134 @@
+//! Full real-data evaluation on the KITTI drive GTSAM ships (docs/PERFORMANCE.md, "Real data:
+//! KITTI"): the factor graph against GTSAM's C++ factors (LM, ISAM2, fixed lag) side by side,
+//! the navigation filter, and gated vs ungated with injected jumps and dropouts.
+//!
+//! `SUBNAV_PEER_PYTHON=<venv>/bin/python cargo run --release -p subnav-fgo --example kitti
+//! [-- --duration-s S] [--fix-every K]`
+//! The data is read from that python's installed gtsam wheel (never copied).
+
+use std::path::PathBuf;
+
+use subnav_fgo::gating::GatingConfig;
+use subnav_fgo::kitti;
+use subnav_fgo::kitti_run::{self, Faults, KittiConfig};
+
+fn arg(name: &str) -> Option<String> {
+    let a: Vec<String> = std::env::args().collect();
+    a.iter().position(|x| x == name).and_then(|i| a.get(i + 1).cloned())
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let python = PathBuf::from(std::env::var_os("SUBNAV_PEER_PYTHON").ok_or("set SUBNAV_PEER_PYTHON to the peer venv's python")?);
+    let dir = kitti::gtsam_data_dir(&python)?;
+    let data = kitti::load_dir(&dir)?;
+    let mut base = KittiConfig::default();
+    if let Some(d) = arg("--duration-s") {
+        base.duration_s = d.parse()?;
+    }
+    if let Some(k) = arg("--fix-every") {
+        base.fix_every = k.parse()?;
+    }
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/peers/gtsam_kitti.py");
+
+    // 1. graph vs GTSAM, clean fixes
+    let sc = kitti_run::scenario(&data, &base)?;
+    let run = kitti_run::run_graph(&data, &sc, &base)?;
+    let problem = kitti_run::gtsam_problem(&data, &sc, &run, base.lag_s)?;
+    let g = kitti_run::run_python_peer(&python, &script, &problem)?;
+    let [dp, dv, dr, db] = kitti_run::max_state_diff(&run.batch, &g["lm"]["nodes"])?;
+    let [ip, ..] = kitti_run::max_state_diff(&run.batch, &g["isam2"]["final"])?;
+    let used = sc.epochs.iter().filter(|e| e.role == kitti_run::Role::Used).count();
+    println!(
+        "## KITTI: {} epochs over {:.0} s, {} fixes used (every {}), {} held out; {} factors",
+        sc.epochs.len(),
+        sc.epochs.last().map_or(0.0, |e| e.t_s) - sc.epochs[0].t_s,
+        used,
+        base.fix_every,
+        sc.epochs.len() - used,
+        run.factors.len()
+    );
+    println!("batch vs GTSAM LM: max |dp| {dp:.2e} m, |dv| {dv:.2e} m/s, |dR| {dr:.2e} rad, |db| {db:.2e}; ISAM2 final vs batch {ip:.2e} m");
+    println!(
+        "LM iterations ours {} GTSAM {}; cost ours {:.6e} -> {:.6e}, GTSAM {:.6e} -> {:.6e}",
+        run.batch_report.iterations,
+        g["lm"]["iterations"],
+        run.batch_report.initial_cost,
+        run.batch_report.final_cost,
+        g["lm"]["initial_error"].as_f64().unwrap_or(f64::NAN),
+        g["lm"]["final_error"].as_f64().unwrap_or(f64::NAN)
+    );
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    let s = |p: Vec<subnav_fgo::nalgebra::Vector3<f64>>| kitti_run::score(&sc.epochs, &p);
+    println!("\n| estimate | held-out RMSE m | max m | used-epoch RMSE m |\n|---|---|---|---|");
+    for (name, sc_) in [
+        ("ours batch LM", s(kitti_run::positions(&run.batch))),
+        ("GTSAM LM", s(kitti_run::peer_positions(&g["lm"]["nodes"]))),
+        ("GTSAM ISAM2 final", s(kitti_run::peer_positions(&g["isam2"]["final"]))),
+        ("ours fixed-lag, real time", s(kitti_run::positions(&run.realtime))),
+        ("GTSAM ISAM2, real time", s(kitti_run::peer_positions(&g["isam2"]["realtime"]))),
+        ("GTSAM fixed-lag, real time", s(kitti_run::peer_positions(&g["fixed_lag"]["realtime"]))),
+    ] {
+        println!("| {name} | {:.3} | {:.3} | {:.3} |", sc_.rmse_heldout_m, sc_.max_heldout_m, sc_.rmse_used_m);
+    }
+    println!("\n| solve | ours CPU s | GTSAM CPU s | ratio GTSAM/ours | ours wall s | GTSAM wall s |\n|---|---|---|---|---|---|");
+    println!(
+        "| batch LM | {:.4} | {:.4} | {:.2} | {:.4} | {:.4} |",
+        run.batch_cpu_s,
+        f(&g["lm"]["cpu_s"]),
+        f(&g["lm"]["cpu_s"]) / run.batch_cpu_s,
+        run.batch_wall_s,
+        f(&g["lm"]["wall_s"])
+    );
+    for (name, key) in [("incremental: ours fixed-lag vs ISAM2", "isam2"), ("incremental: ours fixed-lag vs GTSAM fixed-lag", "fixed_lag")] {
+        println!(
+            "| {name} | {:.4} | {:.4} | {:.2} | {:.4} | {:.4} |",
+            run.smoother_cpu_s,
+            f(&g[key]["cpu_s"]),
+            f(&g[key]["cpu_s"]) / run.smoother_cpu_s,
+            run.smoother_wall_s,
+            f(&g[key]["wall_s"])
+        );
+    }
+
+    // 2. + 3. filter, and gated vs ungated under faults
+    let jumps = Faults { jump_probability: 0.2, jump_m: 20.0, seed: 1, ..Default::default() };
+    let drops = Faults { dropouts_s: vec![(100.0, 160.0), (300.0, 360.0)], seed: 1, ..Default::default() };
+    let both = Faults { dropouts_s: drops.dropouts_s.clone(), ..jumps.clone() };
+    println!(
+        "\n| fixes | method | gate | held-out RMSE m | max m | NEES mean | NEES > chi2(3, 0.99) | fixes inflated/rejected | PD repairs | diverged |\n|---|---|---|---|---|---|---|---|---|---|"
+    );
+    for (fname, faults) in [("clean", Faults::default()), ("20 % jumps 10-20 m", jumps), ("2 x 60 s dropouts", drops), ("jumps + dropouts", both)] {
+        for gate in [true, false] {
+            let cfg = KittiConfig {
+                faults: faults.clone(),
+                gating: GatingConfig { enabled: gate, ..Default::default() },
+                ..base.clone()
+            };
+            let sc = kitti_run::scenario(&data, &cfg)?;
+            let on = if gate { "on" } else { "off" };
+            match kitti_run::run_graph(&data, &sc, &cfg) {
+                Ok(r) => {
+                    let b = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch));
+                    let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime));
+                    println!("| {fname} | graph batch | {on} | {:.3} | {:.3} | | | {} | | |", b.rmse_heldout_m, b.max_heldout_m, r.fixes_inflated());
+                    println!("| {fname} | graph real time | {on} | {:.3} | {:.3} | | | {} | | |", t.rmse_heldout_m, t.max_heldout_m, r.fixes_inflated());
+                }
+                Err(e) => println!("| {fname} | graph | {on} | error: {e} | | | | | | |"),
+            }
+            match kitti_run::run_filter(&data, &sc, &cfg, gate) {
+                Ok(r) => println!(
+                    "| {fname} | filter | {on} | {:.3} | {:.3} | {:.2} | {:.2} | {} | {} | {} |",
+                    r.score.rmse_heldout_m,
+                    r.score.max_heldout_m,
+                    r.nees_mean,
+                    r.nees_above_99,
+                    r.fixes_rejected,
+                    r.pd_repairs,
+                    if r.diverged { "yes" } else { "no" }
+                ),
+                Err(e) => println!("| {fname} | filter | {on} | error: {e} | | | | | | |"),
+            }
+        }
+    }
+    Ok(())
+}
