@@ -173,10 +173,148 @@ fn factor(h: &CscMatrix<f64>) -> Result<CscCholesky<f64>, FgoError> {
     CscCholesky::factor(h).map_err(|e| FgoError::Numeric(format!("information matrix not positive definite ({e:?})")))
 }
 
+type Vector15 = nalgebra::SVector<f64, 15>;
+
+/// Information of a chain graph (every factor on one node or two consecutive nodes: the
+/// INS graphs here), block tridiagonal: diagonal blocks `H_ii`, sub-diagonal `H_{i+1,i}`, and
+/// `g = J^T r`. Solved by a block Cholesky on 15x15 fixed-size blocks (no fill on a chain), which
+/// is several times faster than the general sparse Cholesky on these problems.
+struct Chain {
+    diag: Vec<Matrix15>,
+    sub: Vec<Matrix15>,
+    g: Vec<Vector15>,
+}
+
+fn is_chain(n: usize, factors: &[Factor]) -> bool {
+    n >= 1
+        && factors.iter().all(|f| {
+            let k = f.nodes();
+            k.iter().all(|a| *a < n) && k.iter().all(|a| k.iter().all(|b| a.abs_diff(*b) <= 1))
+        })
+}
+
+impl Chain {
+    fn new(n: usize) -> Self {
+        Self { diag: vec![Matrix15::zeros(); n], sub: vec![Matrix15::zeros(); n.saturating_sub(1)], g: vec![Vector15::zeros(); n] }
+    }
+
+    fn fill(&mut self, nodes: &[NodeState], factors: &[Factor]) -> Result<(), FgoError> {
+        self.diag.iter_mut().for_each(|m| m.fill(0.0));
+        self.sub.iter_mut().for_each(|m| m.fill(0.0));
+        self.g.iter_mut().for_each(|v| v.fill(0.0));
+        for f in factors {
+            let keys = f.nodes();
+            let lin = f.linearize(&states_of(nodes, f)?);
+            if !lin.residual.iter().all(|x| x.is_finite()) || !lin.jacobians.iter().all(|j| j.iter().all(|x| x.is_finite())) {
+                return Err(FgoError::Numeric(format!("factor on nodes {keys:?} evaluated to NaN/inf")));
+            }
+            for (a, ja) in keys.iter().zip(lin.jacobians.iter()) {
+                self.g[*a] += ja.tr_mul(&lin.residual).fixed_rows::<15>(0);
+                for (b, jb) in keys.iter().zip(lin.jacobians.iter()) {
+                    if a == b {
+                        self.diag[*a] += ja.tr_mul(jb).fixed_view::<15, 15>(0, 0);
+                    } else if *a == *b + 1 {
+                        self.sub[*b] += ja.tr_mul(jb).fixed_view::<15, 15>(0, 0);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Block Cholesky of `H + damping I`: the lower factors `L_i` and `C_i = H_{i,i-1} L_{i-1}^-T`.
+    fn factor(&self, damping: f64) -> Option<(Vec<Matrix15>, Vec<Matrix15>)> {
+        let n = self.diag.len();
+        let mut l = Vec::with_capacity(n);
+        let mut c = Vec::with_capacity(n.saturating_sub(1));
+        for i in 0..n {
+            let mut d = self.diag[i] + Matrix15::identity() * damping;
+            if i > 0 {
+                let prev: &Matrix15 = &l[i - 1];
+                let ci = prev.solve_lower_triangular(&self.sub[i - 1].transpose())?.transpose();
+                d -= ci * ci.transpose();
+                c.push(ci);
+            }
+            let d = (d + d.transpose()) * 0.5;
+            l.push(nalgebra::Cholesky::new(d)?.l());
+        }
+        Some((l, c))
+    }
+
+    fn solve(l: &[Matrix15], c: &[Matrix15], b: &[Vector15]) -> Option<Vec<Vector15>> {
+        let n = l.len();
+        let mut y = Vec::with_capacity(n);
+        for i in 0..n {
+            let mut r = b[i];
+            if i > 0 {
+                r -= c[i - 1] * y[i - 1];
+            }
+            y.push(l[i].solve_lower_triangular(&r)?);
+        }
+        let mut x = vec![Vector15::zeros(); n];
+        for i in (0..n).rev() {
+            let mut r = y[i];
+            if i + 1 < n {
+                r -= c[i].transpose() * x[i + 1];
+            }
+            x[i] = l[i].tr_solve_lower_triangular(&r)?;
+        }
+        Some(x)
+    }
+}
+
+fn solve_lm_chain(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -> Result<LmReport, FgoError> {
+    let mut ch = Chain::new(nodes.len());
+    let initial_cost = total_cost(nodes, factors)?;
+    let mut cost = initial_cost;
+    let mut lambda = opts.lambda_initial;
+    let mut converged = false;
+    let mut iterations = 0;
+    while iterations < opts.max_iterations {
+        iterations += 1;
+        ch.fill(nodes, factors)?;
+        let mut accepted = false;
+        let mut step_small = false;
+        while lambda <= opts.lambda_max {
+            let Some((l, c)) = ch.factor(lambda) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let Some(dx) = Chain::solve(&l, &c, &ch.g) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let candidate: Vec<NodeState> = nodes.iter().zip(&dx).map(|(x, d)| x.retract(&(-d))).collect();
+            let new_cost = total_cost(&candidate, factors)?;
+            if new_cost.is_finite() && new_cost <= cost {
+                let decrease = cost - new_cost;
+                nodes.copy_from_slice(&candidate);
+                step_small = dx.iter().map(|d| d.amax()).fold(0.0, f64::max) < 1e-12;
+                converged = decrease <= opts.absolute_tol || decrease <= opts.relative_tol * cost || step_small;
+                cost = new_cost;
+                lambda = (lambda / 10.0).max(1e-16);
+                accepted = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !accepted {
+            converged = true;
+        }
+        if converged || step_small {
+            break;
+        }
+    }
+    Ok(LmReport { iterations, initial_cost, final_cost: cost, converged })
+}
+
 /// Optimise `nodes` in place.
 pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -> Result<LmReport, FgoError> {
     if nodes.iter().any(|x| !x.is_finite()) {
         return Err(FgoError::Input("initial node state contains NaN/inf".into()));
+    }
+    if is_chain(nodes.len(), factors) {
+        return solve_lm_chain(nodes, factors, opts);
     }
     let sys = System::new(nodes.len(), factors)?;
     let mut values = vec![0.0; sys.pattern.nnz()];
@@ -240,6 +378,20 @@ pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -
 pub fn marginal_covariance(nodes: &[NodeState], factors: &[Factor], k: usize) -> Result<Matrix15, FgoError> {
     if k >= nodes.len() {
         return Err(FgoError::Input(format!("no node {k}")));
+    }
+    if is_chain(nodes.len(), factors) {
+        let mut ch = Chain::new(nodes.len());
+        ch.fill(nodes, factors)?;
+        let (l, c) = ch.factor(0.0).ok_or_else(|| FgoError::Numeric("information matrix not positive definite".into()))?;
+        let mut m = Matrix15::zeros();
+        let mut e = vec![Vector15::zeros(); nodes.len()];
+        for i in 0..15 {
+            e[k][i] = 1.0;
+            let x = Chain::solve(&l, &c, &e).ok_or_else(|| FgoError::Numeric("singular information".into()))?;
+            m.set_column(i, &x[k]);
+            e[k][i] = 0.0;
+        }
+        return Ok((m + m.transpose()) * 0.5);
     }
     let (h, _) = normal_equations(nodes, factors, 0.0)?;
     let chol = factor(&h)?;
