@@ -13,7 +13,7 @@ Solvers: LevenbergMarquardtOptimizer from subnav's initial values (batch; then, 
 Gauss-Newton from its optimum for the 1e-6 agreement check); ISAM2 (default
 parameters) fed epoch by epoch, a new node's initial value predicted from ISAM2's estimate of the
 previous node; IncrementalFixedLagSmoother (ISAM2 inside) with subnav's lag, fed the same way.
-Timed: only GTSAM's C++ calls (optimize; update + the newest node's estimate), wall
+Timed (best of `repeat` runs): only GTSAM's C++ calls (optimize; update + the newest node's estimate), wall
 (perf_counter) and CPU (process_time); building the factors in python is not timed.
 Run with OMP/MKL/TBB/OPENBLAS threads = 1 (the wheel links none of them; set anyway).
 
@@ -103,10 +103,14 @@ def main():
     lmp.setRelativeErrorTol(float(d["lm"]["relative_tol"]))
     lmp.setAbsoluteErrorTol(float(d["lm"]["absolute_tol"]))
     initial_error = graph.error(values)
-    w0, c0 = clock()
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, lmp)
-    res = opt.optimize()
-    w1, c1 = clock()
+    rep = int(d.get("repeat", 1))
+    lm_wall = lm_cpu = float("inf")
+    for _ in range(rep):
+        w0, c0 = clock()
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, lmp)
+        res = opt.optimize()
+        w1, c1 = clock()
+        lm_wall, lm_cpu = min(lm_wall, w1 - w0), min(lm_cpu, c1 - c0)
     lm_nodes = [node_out(res.atPose3(X(k)), res.atVector(V(k)), res.atConstantBias(B(k))) for k in range(n)]
     # untimed polish for the agreement check: Gauss-Newton from the LM optimum, no cost tolerance
     gnp = gtsam.GaussNewtonParams()
@@ -154,14 +158,25 @@ def main():
             realtime.append(node_out(pose, vel, b))
         return solver, realtime, wall, cpu
 
-    isam, isam_rt, isam_wall, isam_cpu = incremental(lambda: gtsam.ISAM2(gtsam.ISAM2Params()), False)
+    def best(make, ts):
+        out = None
+        for _ in range(rep):
+            r = incremental(make, ts)
+            if out is None:
+                out = list(r)
+            else:
+                out[2], out[3] = min(out[2], r[2]), min(out[3], r[3])
+        return out
+
+    isam, isam_rt, isam_wall, isam_cpu = best(lambda: gtsam.ISAM2(gtsam.ISAM2Params()), False)
     est = isam.calculateEstimate()
     isam_final = [node_out(est.atPose3(X(k)), est.atVector(V(k)), est.atConstantBias(B(k))) for k in range(n)]
-    _, ifls_rt, ifls_wall, ifls_cpu = incremental(
+    _, ifls_rt, ifls_wall, ifls_cpu = best(
         lambda: gtsam.IncrementalFixedLagSmoother(float(d["lag_s"]), gtsam.ISAM2Params()), True)
 
     json.dump({
-        "lm": {"nodes": lm_nodes, "wall_s": w1 - w0, "cpu_s": c1 - c0, "iterations": opt.iterations(),
+        "repeat": rep,
+        "lm": {"nodes": lm_nodes, "wall_s": lm_wall, "cpu_s": lm_cpu, "iterations": opt.iterations(),
                "initial_error": initial_error, "final_error": graph.error(res),
                "polished": polished, "polished_error": graph.error(pol)},
         "isam2": {"final": isam_final, "realtime": isam_rt, "wall_s": isam_wall, "cpu_s": isam_cpu},

@@ -38,6 +38,24 @@ impl ImuFactor {
         Ok(Self { node_i, node_j, pim, noise })
     }
 
+    /// The residual alone (no Jacobians): what the LM's cost evaluations need.
+    pub fn residual(&self, xi: &NodeState, xj: &NodeState) -> DVector<f64> {
+        let pim = &self.pim;
+        let z = pim.bias_corrected(&xi.bias);
+        let dt = pim.delta_t_s;
+        let g = pim.params.gravity();
+        let ri = xi.nav.rot_enu_flu;
+        let rjt = xj.nav.rot_enu_flu.transpose();
+        let r_hat = ri * so3::exp(&Vector3::new(z[0], z[1], z[2]));
+        let p_hat = xi.nav.pos_enu_m + xi.nav.vel_enu_mps * dt + g * (0.5 * dt * dt) + ri * Vector3::new(z[3], z[4], z[5]);
+        let v_hat = xi.nav.vel_enu_mps + g * dt + ri * Vector3::new(z[6], z[7], z[8]);
+        let mut residual = DVector::zeros(9);
+        residual.fixed_rows_mut::<3>(0).copy_from(&so3::log(&(rjt * r_hat)));
+        residual.fixed_rows_mut::<3>(3).copy_from(&(rjt * (p_hat - xj.nav.pos_enu_m)));
+        residual.fixed_rows_mut::<3>(6).copy_from(&(rjt * (v_hat - xj.nav.vel_enu_mps)));
+        residual
+    }
+
     pub fn evaluate(&self, xi: &NodeState, xj: &NodeState) -> Evaluation {
         let pim = &self.pim;
         let z = pim.bias_corrected(&xi.bias);
@@ -147,6 +165,9 @@ mod tests {
             ImuBias::default(),
         );
         check_jacobians(&f, &[xi, xj], 1e-6);
+        if let Factor::Imu(imu) = &f {
+            assert!((imu.residual(&xi, &xj) - imu.evaluate(&xi, &xj).residual).amax() < 1e-15);
+        }
         let b = Factor::BiasRw(BiasRandomWalkFactor::new(0, 1, 1e-3, 1e-4, 1.5).unwrap());
         check_jacobians(&b, &[xi, xj], 1e-8);
     }
