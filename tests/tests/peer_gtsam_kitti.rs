@@ -60,7 +60,11 @@ fn kitti_60s_graph_agrees_with_gtsam_cpp() {
         g["isam2"]["cpu_s"].as_f64().unwrap_or(f64::NAN),
         g["fixed_lag"]["cpu_s"].as_f64().unwrap_or(f64::NAN),
     );
-    assert!((gi - run.batch_report.initial_cost).abs() <= 1e-6 * gi.abs().max(1.0), "initial costs differ: GTSAM {gi} ours {}", run.batch_report.initial_cost);
+    assert!(
+        (gi - run.batch_report.initial_cost).abs() <= 1e-6 * gi.abs().max(1.0),
+        "initial costs differ: GTSAM {gi} ours {}",
+        run.batch_report.initial_cost
+    );
     assert!(dp < 1e-6, "positions differ from GTSAM by {dp} m");
     assert!(dr < 1e-6, "attitudes differ from GTSAM by {dr} rad");
     assert!(dv < 1e-6, "velocities differ from GTSAM by {dv} m/s");
@@ -105,7 +109,12 @@ fn kitti_60s_filter_runs_and_gate_handles_a_jump() {
     let u = kitti_run::run_graph(&data, &sc, &ungated).expect("ungated");
     let (sg, su) =
         (kitti_run::score(&sc.epochs, &kitti_run::positions(&g.batch)), kitti_run::score(&sc.epochs, &kitti_run::positions(&u.batch)));
-    println!("graph with {jumps} jumps: gated batch {:.2} m ({} inflated), ungated {:.2} m", sg.rmse_heldout_m, g.fixes_inflated(), su.rmse_heldout_m);
+    println!(
+        "graph with {jumps} jumps: gated batch {:.2} m ({} inflated), ungated {:.2} m",
+        sg.rmse_heldout_m,
+        g.fixes_inflated(),
+        su.rmse_heldout_m
+    );
     // jumps are flagged once the track has converged (the first ones fall within the early,
     // large predicted covariance: at 20 s a 20-m jump had gamma 1.3)
     let flagged = sc
@@ -119,7 +128,12 @@ fn kitti_60s_filter_runs_and_gate_handles_a_jump() {
     assert_eq!(g.gate_log.decisions.len(), used - 1, "one gate decision per fix after the first");
     assert_eq!(u.fixes_inflated(), 0);
     let at_jumps = |r: &kitti_run::GraphRun| -> f64 {
-        sc.epochs.iter().zip(&r.batch).filter(|(e, _)| e.jumped).map(|(e, x)| (x.nav.pos_enu_m - e.recorded.pos_enu_m).norm()).fold(0.0, f64::max)
+        sc.epochs
+            .iter()
+            .zip(&r.batch)
+            .filter(|(e, _)| e.jumped)
+            .map(|(e, x)| (x.nav.pos_enu_m - e.recorded.pos_enu_m).norm())
+            .fold(0.0, f64::max)
     };
     println!("worst error at a jumped epoch: gated {:.2} m, ungated {:.2} m", at_jumps(&g), at_jumps(&u));
 }

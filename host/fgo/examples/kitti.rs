@@ -95,7 +95,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         run.batch_wall_s,
         f(&g["lm"]["wall_s"])
     );
-    for (name, key) in [("incremental: ours fixed-lag vs ISAM2", "isam2"), ("incremental: ours fixed-lag vs GTSAM fixed-lag", "fixed_lag")] {
+    for (name, key) in [("incremental: ours fixed-lag vs ISAM2", "isam2"), ("incremental: ours fixed-lag vs GTSAM fixed-lag", "fixed_lag")]
+    {
         println!(
             "| {name} | {:.4} | {:.4} | {:.2} | {:.4} | {:.4} |",
             run.smoother_cpu_s,
@@ -113,21 +114,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "\n| fixes | method | gate | held-out RMSE m | max m | NEES mean | NEES > chi2(3, 0.99) | fixes inflated/rejected | PD repairs | diverged |\n|---|---|---|---|---|---|---|---|---|---|"
     );
-    for (fname, faults) in [("clean", Faults::default()), ("20 % jumps 10-20 m", jumps), ("2 x 60 s dropouts", drops), ("jumps + dropouts", both)] {
+    for (fname, faults) in
+        [("clean", Faults::default()), ("20 % jumps 10-20 m", jumps), ("2 x 60 s dropouts", drops), ("jumps + dropouts", both)]
+    {
         for gate in [true, false] {
-            let cfg = KittiConfig {
-                faults: faults.clone(),
-                gating: GatingConfig { enabled: gate, ..Default::default() },
-                ..base.clone()
-            };
+            let cfg = KittiConfig { faults: faults.clone(), gating: GatingConfig { enabled: gate, ..Default::default() }, ..base.clone() };
             let sc = kitti_run::scenario(&data, &cfg)?;
             let on = if gate { "on" } else { "off" };
             match kitti_run::run_graph(&data, &sc, &cfg) {
                 Ok(r) => {
                     let b = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch));
                     let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime));
-                    println!("| {fname} | graph batch | {on} | {:.3} | {:.3} | | | {} | | |", b.rmse_heldout_m, b.max_heldout_m, r.fixes_inflated());
-                    println!("| {fname} | graph real time | {on} | {:.3} | {:.3} | | | {} | | |", t.rmse_heldout_m, t.max_heldout_m, r.fixes_inflated());
+                    println!(
+                        "| {fname} | graph batch | {on} | {:.3} | {:.3} | | | {} | | |",
+                        b.rmse_heldout_m,
+                        b.max_heldout_m,
+                        r.fixes_inflated()
+                    );
+                    println!(
+                        "| {fname} | graph real time | {on} | {:.3} | {:.3} | | | {} | | |",
+                        t.rmse_heldout_m,
+                        t.max_heldout_m,
+                        r.fixes_inflated()
+                    );
                 }
                 Err(e) => println!("| {fname} | graph | {on} | error: {e} | | | | | | |"),
             }

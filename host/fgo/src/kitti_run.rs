@@ -249,7 +249,11 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     let t_start = std::time::Instant::now();
     let mut realtime = Vec::with_capacity(sc.epochs.len());
     realtime.push(NodeState::new(
-        NavState::new(so3::exp(&Vector3::from(sc.prior.rotvec_enu_flu)), Vector3::from(sc.prior.pos_enu_m), Vector3::from(sc.prior.vel_enu_mps)),
+        NavState::new(
+            so3::exp(&Vector3::from(sc.prior.rotvec_enu_flu)),
+            Vector3::from(sc.prior.pos_enu_m),
+            Vector3::from(sc.prior.vel_enu_mps),
+        ),
         ImuBias::default(),
     ));
     for e in &sc.epochs[1..] {
@@ -531,11 +535,7 @@ pub fn peer_positions(peer: &Value) -> Vec<Vector3<f64>> {
             a.iter()
                 .map(|n| {
                     let p = &n["p"];
-                    Vector3::new(
-                        p[0].as_f64().unwrap_or(f64::NAN),
-                        p[1].as_f64().unwrap_or(f64::NAN),
-                        p[2].as_f64().unwrap_or(f64::NAN),
-                    )
+                    Vector3::new(p[0].as_f64().unwrap_or(f64::NAN), p[1].as_f64().unwrap_or(f64::NAN), p[2].as_f64().unwrap_or(f64::NAN))
                 })
                 .collect()
         })
