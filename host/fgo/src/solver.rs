@@ -404,3 +404,42 @@ pub fn marginal_covariance(nodes: &[NodeState], factors: &[Factor], k: usize) ->
     let m = Matrix15::from_iterator(blk.iter().copied());
     Ok((m + m.transpose()) * 0.5)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{SimConfig, simulate};
+    use crate::smoother::{self, SmootherConfig};
+
+    #[test]
+    fn block_tridiagonal_path_equals_the_dense_inverse() {
+        let sim = simulate(&SimConfig { duration_s: 12.0, seed: 2, ..Default::default() });
+        let res = smoother::run(&sim.log, SmootherConfig::default(), false, |_, _| {}).unwrap();
+        let nodes: Vec<NodeState> = res.batch.iter().map(|e| e.state).collect();
+        assert!(is_chain(nodes.len(), &res.batch_factors) && nodes.len() > 5);
+        // marginal covariance: chain path vs the dense inverse of the (general, CSC) information
+        let (h, g) = normal_equations(&nodes, &res.batch_factors, 0.0).unwrap();
+        let dense: DMatrix<f64> = DMatrix::from(&h);
+        let inv = dense.clone().try_inverse().unwrap();
+        for k in [0, nodes.len() / 2, nodes.len() - 1] {
+            let m = marginal_covariance(&nodes, &res.batch_factors, k).unwrap();
+            let d = inv.view((15 * k, 15 * k), (15, 15));
+            let err = (0..15).flat_map(|r| (0..15).map(move |c| (r, c))).map(|(r, c)| (m[(r, c)] - d[(r, c)]).abs()).fold(0.0, f64::max);
+            assert!(err <= 1e-6 * d.amax(), "node {k}: {err} of {}", d.amax());
+        }
+        // a damped step: chain solve vs dense solve
+        let mut ch = Chain::new(nodes.len());
+        ch.fill(&nodes, &res.batch_factors).unwrap();
+        let (l, c) = ch.factor(1e-3).unwrap();
+        let x = Chain::solve(&l, &c, &ch.g).unwrap();
+        let xd = (dense + DMatrix::identity(15 * nodes.len(), 15 * nodes.len()) * 1e-3).lu().solve(&g).unwrap();
+        let err = x.iter().enumerate().map(|(i, v)| (v - xd.rows(15 * i, 15)).amax()).fold(0.0, f64::max);
+        assert!(err <= 1e-8 * xd.amax().max(1.0), "step differs by {err}");
+        // not a chain: a factor across three nodes is refused by the chain path
+        let mut f = res.batch_factors.clone();
+        if let Some(Factor::BiasRw(b)) = f.iter_mut().find(|f| matches!(f, Factor::BiasRw(_))) {
+            b.node_j = b.node_i + 2;
+        }
+        assert!(!is_chain(nodes.len(), &f));
+    }
+}
