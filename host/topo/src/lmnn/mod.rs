@@ -13,14 +13,21 @@
 //!
 //! What makes it fast (module [`solver`]):
 //! - all distances come from one `L X` product per evaluation (columns contiguous);
-//! - impostors come from an exact active set: after a full `O(n^2 d)` scan at a reference
-//!   `L_ref`, only pairs that can still violate a margin are kept. With
-//!   `eps = ||L - L_ref||_F ||L_ref^-1||_2`, every distance satisfies
-//!   `(1 - eps) ||L_ref v|| <= ||L v|| <= (1 + eps) ||L_ref v||`, so a pair outside the kept set
-//!   cannot be an impostor while `eps` stays under the budget used to build it; the set is
-//!   rebuilt when it does not. The result is the same triplet set as a full scan every step.
+//! - impostors come from an exact active set: a full scan at a reference `L_ref` (all
+//!   cross-class distances from one Gram product `(L_ref X)^T (L_ref X)`, a GEMM) keeps, per
+//!   anchor, the other-class samples that could still violate one of its margins while
+//!   `e = ||(L - L_ref) L_ref^-1||_2 <= eps`, sorted by their reference distance. Then every
+//!   distance satisfies `(1 - e) ||L_ref v|| <= ||L v|| <= (1 + e) ||L_ref v||`, so at an `L` with
+//!   bound `e` only the prefix of each anchor's row within `(1 + far) / (1 - e)^2` can hold an
+//!   impostor: the evaluation computes the exact distances of that prefix only, and the set is
+//!   rebuilt when `e` exceeds the budget. `e` is bounded by repeated squaring of
+//!   `A^T A` (at most `d^(1/32)` above the true spectral norm, where the Frobenius norm can be
+//!   `sqrt(d)` above), so a larger budget costs memory, not scan time, and rebuilds are rare.
+//!   The result is the same triplet set as a full scan every step (unit-tested on whole fits).
 //! - the gradient `sum_w w (x_a - x_b)(x_a - x_b)^T` is one `X Lap X^T` with a sparse graph
-//!   Laplacian, i.e. one dense `d x n x d` product.
+//!   Laplacian, restricted to the samples with a nonzero degree: one dense `d x m x d` product.
+//!
+//! Dense products are nalgebra's (`matrixmultiply` underneath).
 //!
 //! Written here rather than taken from a crate: no maintained Rust crate implements LMNN (linfa
 //! has no metric learning).
