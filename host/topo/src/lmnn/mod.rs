@@ -15,15 +15,16 @@
 //! - all distances come from one `L X` product per evaluation (columns contiguous);
 //! - impostors come from an exact active set: a full scan at a reference `L_ref` (all
 //!   cross-class distances from one Gram product `(L_ref X)^T (L_ref X)`, a GEMM) keeps, per
-//!   anchor, the other-class samples that could still violate one of its margins while
-//!   `e = ||(L - L_ref) L_ref^-1||_2 <= eps`, sorted by their reference distance. Then every
-//!   distance satisfies `(1 - e) ||L_ref v|| <= ||L v|| <= (1 + e) ||L_ref v||`, so at an `L` with
-//!   bound `e` only the prefix of each anchor's row within `(1 + far) / (1 - e)^2` can hold an
-//!   impostor: the evaluation computes the exact distances of that prefix only, and the set is
-//!   rebuilt when `e` exceeds the budget. `e` is bounded by repeated squaring of
-//!   `A^T A` (at most `d^(1/32)` above the true spectral norm, where the Frobenius norm can be
-//!   `sqrt(d)` above), so a larger budget costs memory, not scan time, and rebuilds are rare.
-//!   The result is the same triplet set as a full scan every step (unit-tested on whole fits).
+//!   anchor `a`, the other-class samples `b` that could still violate one of its margins while
+//!   `delta_L = ||L - L_ref||_2 <= active_set_eps ||L_ref||_2`, sorted by their reference
+//!   distance. Every pair obeys `||L v|| >= ||L_ref v|| - delta_L ||v||` (`v = x_a - x_b`), so at
+//!   a later `L` only a prefix of each row can hold an impostor and each entry is measured only if
+//!   its own bound allows; the set is rebuilt when the budget or a row's cover is exceeded.
+//!   `delta_L` is bounded by repeated squaring of `A^T A` (at most `d^(1/32)` above the true
+//!   spectral norm; Frobenius can be `sqrt(d)` above). The bound is absolute: a bound relative to
+//!   `L_ref^-1` (an earlier version) failed on digits, where `L` becomes nearly singular and the
+//!   set was rebuilt on every second evaluation. The result is the same triplet set as a full
+//!   scan every step (unit-tested on whole fits).
 //! - the gradient `sum_w w (x_a - x_b)(x_a - x_b)^T` is one `X Lap X^T` with a sparse graph
 //!   Laplacian, restricted to the samples with a nonzero degree: one dense `d x m x d` product.
 //!

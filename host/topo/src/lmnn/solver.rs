@@ -17,13 +17,15 @@ pub struct LmnnConfig {
     pub regularization: f64,
     /// Stop when the objective changes by less than this (after `min_iter`).
     pub convergence_tol: f64,
-    /// Relative distance budget of the impostor active set (0 = full scan every evaluation).
+    /// Budget of the impostor active set, relative to `||L_ref||_2`: the set is rebuilt once
+    /// `||L - L_ref||_2` exceeds `active_set_eps ||L_ref||_2` (0 = full scan every evaluation).
+    /// Any value gives the same triplets, only the speed changes.
     pub active_set_eps: f64,
 }
 
 impl Default for LmnnConfig {
     fn default() -> Self {
-        Self { k: 3, min_iter: 50, max_iter: 1000, learn_rate: 1e-7, regularization: 0.5, convergence_tol: 1e-3, active_set_eps: 0.2 }
+        Self { k: 3, min_iter: 50, max_iter: 1000, learn_rate: 1e-7, regularization: 0.5, convergence_tol: 1e-3, active_set_eps: 0.05 }
     }
 }
 
@@ -87,27 +89,35 @@ struct Problem {
     reg: f64,
     /// Pull term `sum_{i, j~>i} (x_i - x_j)(x_i - x_j)^T`.
     pull: DMatrix<f64>,
+    /// Upper bounds of the input-space distances `||x_a - x_b||` (n x n, f32 rounded up).
+    xdist: Vec<f32>,
+    /// Per sample: the largest input distance to one of its targets.
+    target_r: Vec<f64>,
 }
 
-/// Candidate impostors per anchor, valid while `||(L - l_ref) l_ref^-1||_2 <= eps` (then
-/// `(1 - eps) ||l_ref v|| <= ||L v|| <= (1 + eps) ||l_ref v||` for every `v`).
+/// Candidate impostors per anchor, valid while `delta_L = ||L - l_ref||_2 <= delta`: then for
+/// every pair `||L v|| >= ||l_ref v|| - delta_L ||v||` (`v = x_a - x_b`, input space), so a triplet
+/// `(a, j, b)` can only be active if `s_ref(a, b) - delta_L r(a, b) < sqrt(1 + far_L(a))`
+/// (`s_ref = ||l_ref v||`, `r = ||v||`, `far_L(a)` the largest target distance of `a` at `L`).
 ///
-/// For anchor `a` (CSR rows `start[a]..start[a + 1]`) the partners `b` of another class whose
-/// reference distance satisfies `(1 - eps)^2 d_ref(a, b) < 1 + (1 + eps)^2 far_ref(a)`, sorted by
-/// `d_ref` ascending. At an `L` with bound `e <= eps`, a triplet `(a, j, b)` can only be active if
-/// `d_ref(a, b) < (1 + far_L(a)) / (1 - e)^2`: a prefix of the row, found by stopping at the first
-/// partner past that radius. So the per-evaluation scan costs about the pairs near a margin at the
-/// current `L`, whatever the budget `eps` the set was built with.
+/// For anchor `a` (CSR rows `start[a]..start[a + 1]`) the partners `b` of another class with
+/// `s_ref - delta r < cover[a]`, sorted by `s_ref` ascending; `cover[a]` bounds
+/// `sqrt(1 + far_L(a))` while the set is valid (checked at every evaluation). The scan of a row
+/// stops at the first `s_ref >= radius + delta_L rmax[a]` (a prefix that is short right after a
+/// rebuild and grows with `delta_L`), and a pair is measured only if its own bound lets it be
+/// active. The bound is absolute, not relative
+/// to `l_ref^-1`: LMNN on digits drives `L` close to singular, where a relative bound fails at
+/// once.
 struct ActiveSet {
     l_ref: DMatrix<f64>,
-    l_ref_inv: DMatrix<f64>,
-    eps: f64,
+    delta: f64,
     start: Vec<usize>,
     partner: Vec<u32>,
-    /// Lower bounds of the reference squared distances (Gram rounding subtracted).
-    d_ref: Vec<f64>,
-    /// Per anchor: the largest scan radius the row covers.
+    s_ref: Vec<f64>,
+    r: Vec<f64>,
     cover: Vec<f64>,
+    /// Per anchor: the largest `r` of its row.
+    rmax: Vec<f64>,
 }
 
 struct Eval {
@@ -224,7 +234,17 @@ impl Problem {
         let edges: Vec<(usize, usize, f64)> =
             (0..n).flat_map(|i| (0..k).map(move |t| (i, t))).map(|(i, t)| (i, targets[i * k + t], 1.0)).collect();
         let pull = sum_outer(&xt, &edges);
-        Problem { xt, labels: labels.to_vec(), targets, k, reg, pull }
+        let gram = x * &xt;
+        let xdist: Vec<f32> = (0..n * n)
+            .map(|ab| {
+                let (a, b) = (ab / n, ab % n);
+                let d2 = (gram[(a, a)] + gram[(b, b)] - 2.0 * gram[(a, b)]).max(0.0);
+                // Rounded up: the Gram rounding plus the f32 cast.
+                ((d2 + 1e-12 * (gram[(a, a)] + gram[(b, b)]) + 1e-300).sqrt() * (1.0 + 1e-6)) as f32
+            })
+            .collect();
+        let target_r = (0..n).map(|a| (0..k).map(|t| xdist[a * n + targets[a * k + t]] as f64).fold(0.0, f64::max)).collect();
+        Problem { xt, xdist, target_r, labels: labels.to_vec(), targets, k, reg, pull }
     }
 
     /// Target distances per (sample, target) under `lx`.
@@ -233,49 +253,47 @@ impl Problem {
     }
 
     /// Full scan at `l`: all cross-class squared distances from one Gram product `lx^T lx`.
-    /// `None` if `l` has no usable inverse (then every evaluation scans in full).
-    fn build_active_set(&self, l: &DMatrix<f64>, lx: &DMatrix<f64>, far: &[f64], eps: f64) -> Option<ActiveSet> {
+    fn build_active_set(&self, l: &DMatrix<f64>, lx: &DMatrix<f64>, far: &[f64], eps: f64) -> ActiveSet {
         let n = self.xt.ncols();
-        let l_ref_inv = l.clone().try_inverse().filter(|m| m.iter().all(|v| v.is_finite()))?;
-        let (lo, hi) = ((1.0 - eps).powi(2), (1.0 + eps).powi(2));
+        let delta = eps * spectral_norm_bound(l);
         let gram = lx.transpose() * lx;
         let norms: Vec<f64> = (0..n).map(|i| gram[(i, i)]).collect();
         // Rounding of `|a|^2 + |b|^2 - 2 a.b` is below ~4 d u (|a|^2 + |b|^2); 1e-12 max |.|^2 covers it.
         let round = 1e-12 * norms.iter().cloned().fold(0.0, f64::max) * (1.0 + lx.nrows() as f64 / 64.0);
         let g = gram.as_slice();
         let mut start = Vec::with_capacity(n + 1);
-        let mut partner = Vec::new();
-        let mut d_ref = Vec::new();
+        let (mut partner, mut s_ref, mut r) = (Vec::new(), Vec::new(), Vec::new());
         let mut cover = Vec::with_capacity(n);
-        let mut row: Vec<(f64, u32)> = Vec::with_capacity(n);
+        let mut rmax = Vec::with_capacity(n);
+        let mut row: Vec<(f64, f64, f64, u32)> = Vec::with_capacity(n);
         for a in 0..n {
             start.push(partner.len());
-            let c = (1.0 + hi * far[a]) / lo * (1.0 + SLACK);
+            let c = ((1.0 + far[a]).sqrt() + delta * self.target_r[a]) * (1.0 + SLACK);
             cover.push(c);
             row.clear();
             let col = &g[a * n..(a + 1) * n];
             for (b, &gab) in col.iter().enumerate() {
                 if self.labels[b] != self.labels[a] {
-                    let d2 = (norms[a] + norms[b] - 2.0 * gab - round).max(0.0);
-                    if d2 < c {
-                        row.push((d2, b as u32));
+                    let sr = (norms[a] + norms[b] - 2.0 * gab - round).max(0.0).sqrt();
+                    let rab = self.xdist[a * n + b] as f64;
+                    let kk = sr - delta * rab;
+                    if kk < c {
+                        row.push((kk, sr, rab, b as u32));
                     }
                 }
             }
-            row.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
-            for &(d2, b) in &row {
-                d_ref.push(d2);
+            // Sorted by the reference distance: at a later `L` the scan stops where
+            // `s_ref - delta_L rmax >= radius`, a prefix that grows with `delta_L`.
+            row.sort_unstable_by(|x, y| x.1.total_cmp(&y.1));
+            rmax.push(row.iter().map(|e| e.2).fold(0.0, f64::max));
+            for &(_, sr, rab, b) in &row {
+                s_ref.push(sr);
+                r.push(rab);
                 partner.push(b);
             }
         }
         start.push(partner.len());
-        Some(ActiveSet { l_ref: l.clone(), l_ref_inv, eps, start, partner, d_ref, cover })
-    }
-
-    /// The bound `e` of `l` against the set's reference, if the set still covers `l`.
-    fn set_bound(s: &ActiveSet, l: &DMatrix<f64>) -> Option<f64> {
-        let e = spectral_norm_bound(&((l - &s.l_ref) * &s.l_ref_inv)) * (1.0 + SLACK) + SLACK;
-        (e <= s.eps && e < 1.0).then_some(e)
+        ActiveSet { l_ref: l.clone(), delta, start, partner, s_ref, r, cover, rmax }
     }
 
     fn eval(&self, l: &DMatrix<f64>, set: &mut Option<ActiveSet>, eps_budget: f64, scans: &mut usize) -> Eval {
@@ -284,21 +302,18 @@ impl Problem {
         let k = self.k;
         let tdist = self.target_dists(&lx);
         let far: Vec<f64> = (0..n).map(|i| tdist[i * k..(i + 1) * k].iter().cloned().fold(0.0, f64::max)).collect();
-        // Radius per anchor at this `l`; a row that does not cover it forces a rebuild.
-        let radii = |s: &ActiveSet, e: f64| -> Option<Vec<f64>> {
-            let lo = (1.0 - e).powi(2);
-            let r: Vec<f64> = far.iter().map(|f| (1.0 + f) / lo * (1.0 + SLACK)).collect();
-            r.iter().zip(&s.cover).all(|(r, c)| r <= c).then_some(r)
+        // Radius per anchor at this `l` (sqrt of 1 + the largest target distance).
+        let radius: Vec<f64> = far.iter().map(|f| (1.0 + f).sqrt() * (1.0 + SLACK)).collect();
+        let bound = |s: &ActiveSet| -> Option<f64> {
+            let dl = spectral_norm_bound(&(l - &s.l_ref)) * (1.0 + SLACK);
+            (dl <= s.delta && radius.iter().zip(&s.cover).all(|(r, c)| r <= c)).then_some(dl)
         };
-        let current = if eps_budget > 0.0 { set.as_ref().and_then(|s| Self::set_bound(s, l).and_then(|e| radii(s, e))) } else { None };
-        let radius = match current {
-            Some(r) => Some(r),
-            None => {
-                *set = if eps_budget > 0.0 { self.build_active_set(l, &lx, &far, eps_budget) } else { None };
-                *scans += 1;
-                set.as_ref().and_then(|s| radii(s, 0.0))
-            }
-        };
+        let mut dl = if eps_budget > 0.0 { set.as_ref().and_then(bound) } else { None };
+        if dl.is_none() {
+            *set = (eps_budget > 0.0).then(|| self.build_active_set(l, &lx, &far, eps_budget));
+            *scans += 1;
+            dl = set.as_ref().map(|_| 0.0);
+        }
         // Active triplets (a, j~>a, b): d(a, b) < 1 + d(a, j), b of another class.
         let mut edges: Vec<(usize, usize, f64)> = Vec::new();
         let mut tcount = vec![0usize; n * k];
@@ -317,15 +332,18 @@ impl Problem {
                 active += cnt;
             }
         };
-        match (set.as_ref(), radius) {
-            (Some(s), Some(r)) => {
+        match (set.as_ref(), dl) {
+            (Some(s), Some(dl)) => {
                 for a in 0..n {
-                    let row = s.start[a]..s.start[a + 1];
-                    for (&d2, &b) in s.d_ref[row.clone()].iter().zip(&s.partner[row]) {
-                        if d2 >= r[a] {
+                    let ra = radius[a];
+                    let stop = ra + dl * s.rmax[a];
+                    for idx in s.start[a]..s.start[a + 1] {
+                        if s.s_ref[idx] >= stop {
                             break;
                         }
-                        visit(a, b as usize, &mut edges);
+                        if s.s_ref[idx] - dl * s.r[idx] < ra {
+                            visit(a, s.partner[idx] as usize, &mut edges);
+                        }
                     }
                 }
             }
