@@ -17,13 +17,15 @@ pub struct LmnnConfig {
     pub regularization: f64,
     /// Stop when the objective changes by less than this (after `min_iter`).
     pub convergence_tol: f64,
-    /// Relative distance budget of the impostor active set (0 = full scan every evaluation).
+    /// Budget of the impostor active set, relative to `||L_ref||_2`: the set is rebuilt once
+    /// `||L - L_ref||_2` exceeds `active_set_eps ||L_ref||_2` (0 = full scan every evaluation).
+    /// Any value gives the same triplets, only the speed changes.
     pub active_set_eps: f64,
 }
 
 impl Default for LmnnConfig {
     fn default() -> Self {
-        Self { k: 3, min_iter: 50, max_iter: 1000, learn_rate: 1e-7, regularization: 0.5, convergence_tol: 1e-3, active_set_eps: 0.2 }
+        Self { k: 3, min_iter: 50, max_iter: 1000, learn_rate: 1e-7, regularization: 0.5, convergence_tol: 1e-3, active_set_eps: 0.05 }
     }
 }
 
@@ -80,7 +82,6 @@ pub struct FitReport {
 /// Data laid out for the solver: `xt` is `d x n` (one sample per column, contiguous).
 struct Problem {
     xt: DMatrix<f64>,
-    x: DMatrix<f64>,
     labels: Vec<usize>,
     /// `targets[i * k + t]`.
     targets: Vec<usize>,
@@ -88,16 +89,35 @@ struct Problem {
     reg: f64,
     /// Pull term `sum_{i, j~>i} (x_i - x_j)(x_i - x_j)^T`.
     pull: DMatrix<f64>,
+    /// Upper bounds of the input-space distances `||x_a - x_b||` (n x n, f32 rounded up).
+    xdist: Vec<f32>,
+    /// Per sample: the largest input distance to one of its targets.
+    target_r: Vec<f64>,
 }
 
-/// Candidate impostor pairs `(a, b)`, `a < b`, different labels, valid while
-/// `||(L - l_ref) l_ref^-1||_F <= eps` (an upper bound of the spectral norm: then
-/// `| ||L v|| - ||l_ref v|| | <= eps ||l_ref v||` for every `v`).
+/// Candidate impostors per anchor, valid while `delta_L = ||L - l_ref||_2 <= delta`: then for
+/// every pair `||L v|| >= ||l_ref v|| - delta_L ||v||` (`v = x_a - x_b`, input space), so a triplet
+/// `(a, j, b)` can only be active if `s_ref(a, b) - delta_L r(a, b) < sqrt(1 + far_L(a))`
+/// (`s_ref = ||l_ref v||`, `r = ||v||`, `far_L(a)` the largest target distance of `a` at `L`).
+///
+/// For anchor `a` (CSR rows `start[a]..start[a + 1]`) the partners `b` of another class with
+/// `s_ref - delta r < cover[a]`, sorted by `s_ref` ascending; `cover[a]` bounds
+/// `sqrt(1 + far_L(a))` while the set is valid (checked at every evaluation). The scan of a row
+/// stops at the first `s_ref >= radius + delta_L rmax[a]` (a prefix that is short right after a
+/// rebuild and grows with `delta_L`), and a pair is measured only if its own bound lets it be
+/// active. The bound is absolute, not relative
+/// to `l_ref^-1`: LMNN on digits drives `L` close to singular, where a relative bound fails at
+/// once.
 struct ActiveSet {
-    pairs: Vec<(u32, u32)>,
     l_ref: DMatrix<f64>,
-    l_ref_inv: Option<DMatrix<f64>>,
-    eps: f64,
+    delta: f64,
+    start: Vec<usize>,
+    partner: Vec<u32>,
+    s_ref: Vec<f64>,
+    r: Vec<f64>,
+    cover: Vec<f64>,
+    /// Per anchor: the largest `r` of its row.
+    rmax: Vec<f64>,
 }
 
 struct Eval {
@@ -118,45 +138,82 @@ fn sq_dist_cols(m: &DMatrix<f64>, a: usize, b: usize) -> f64 {
     acc
 }
 
-/// Squared distances between all columns of `m` (n x n), via the Gram matrix.
-fn pairwise_sq(m: &DMatrix<f64>) -> DMatrix<f64> {
-    let gram = m.transpose() * m;
-    let n = m.ncols();
-    let norms: Vec<f64> = (0..n).map(|i| gram[(i, i)]).collect();
-    DMatrix::from_fn(n, n, |i, j| (norms[i] + norms[j] - 2.0 * gram[(i, j)]).max(0.0))
+/// An upper bound of the spectral norm of `a`: the smaller of `||a||_F` and
+/// `||B^16||_F^(1/32)` with `B = a^T a` (`lambda_max(B)^16 <= ||B^16||_F <= d lambda_max(B)^16`, so
+/// at most `d^(1/32)` above the true norm: 1.14 for d = 64; Frobenius alone can be `sqrt(d)` = 8
+/// times too large). Computed by repeated squaring, normalised at each step; `4 d^3` flops.
+fn spectral_norm_bound(a: &DMatrix<f64>) -> f64 {
+    let fro = a.norm();
+    if !(fro > 0.0) || !fro.is_finite() {
+        return fro;
+    }
+    let mut b = a.transpose() * a;
+    let s0 = b.norm();
+    if !(s0 > 0.0) {
+        return fro;
+    }
+    b /= s0;
+    let mut log_lambda = s0.ln();
+    let mut w = 1.0;
+    for _ in 0..4 {
+        b = &b * &b;
+        let s = b.norm();
+        if !(s > 0.0) || !s.is_finite() {
+            break; // lambda of the normalised B is <= 1: the bound so far holds
+        }
+        w *= 0.5;
+        log_lambda += w * s.ln();
+        b /= s;
+    }
+    fro.min((0.5 * log_lambda).exp())
 }
 
-/// Weighted sum of outer products `sum w (x_a - x_b)(x_a - x_b)^T` as `X Lap X^T`.
-/// `xt` is `d x n`, `x` the same data `n x d`.
-fn sum_outer(xt: &DMatrix<f64>, x_nd: &DMatrix<f64>, edges: &[(usize, usize, f64)]) -> DMatrix<f64> {
+/// Weighted sum of outer products `sum w (x_a - x_b)(x_a - x_b)^T` as `X Lap X^T`, with the
+/// Laplacian's nonzero columns only (`Y = X Lap` gathered into `d x m`, then one `Y X_m^T` GEMM
+/// over the `m` samples that appear in an edge). `xt` is `d x n`.
+fn sum_outer(xt: &DMatrix<f64>, edges: &[(usize, usize, f64)]) -> DMatrix<f64> {
     let d = xt.nrows();
     let n = xt.ncols();
-    // Laplacian: degree (diagonal) and off-diagonal weights, then Y = X Lap column by column.
-    let mut deg = vec![0.0; n];
+    // Compact index of every sample in an edge, and its degree.
+    let mut slot = vec![u32::MAX; n];
+    let mut used: Vec<usize> = Vec::new();
+    let mut deg: Vec<f64> = Vec::new();
     for &(a, b, w) in edges {
-        deg[a] += w;
-        deg[b] += w;
+        for v in [a, b] {
+            if slot[v] == u32::MAX {
+                slot[v] = used.len() as u32;
+                used.push(v);
+                deg.push(0.0);
+            }
+            deg[slot[v] as usize] += w;
+        }
     }
+    let m = used.len();
     let x = xt.as_slice();
-    let mut y = DMatrix::<f64>::zeros(d, n);
+    let mut y = DMatrix::<f64>::zeros(d, m);
+    let mut xm = DMatrix::<f64>::zeros(m, d);
     {
         let ys = y.as_mut_slice();
-        for (i, &g) in deg.iter().enumerate() {
-            if g != 0.0 {
-                for r in 0..d {
-                    ys[i * d + r] = g * x[i * d + r];
-                }
+        for (s, (&v, &g)) in used.iter().zip(&deg).enumerate() {
+            let xv = &x[v * d..(v + 1) * d];
+            for r in 0..d {
+                ys[s * d + r] = g * xv[r];
+                xm[(s, r)] = xv[r];
             }
         }
         for &(a, b, w) in edges {
+            let (sa, sb) = (slot[a] as usize, slot[b] as usize);
             for r in 0..d {
-                ys[a * d + r] -= w * x[b * d + r];
-                ys[b * d + r] -= w * x[a * d + r];
+                ys[sa * d + r] -= w * x[b * d + r];
+                ys[sb * d + r] -= w * x[a * d + r];
             }
         }
     }
-    y * x_nd
+    y * xm
 }
+
+/// Relative slack on every bound test (rounding of the Gram distances, the inverse, the norm).
+const SLACK: f64 = 1e-9;
 
 impl Problem {
     fn new(x: &DMatrix<f64>, labels: &[usize], k: usize, reg: f64) -> Self {
@@ -176,65 +233,136 @@ impl Problem {
         }
         let edges: Vec<(usize, usize, f64)> =
             (0..n).flat_map(|i| (0..k).map(move |t| (i, t))).map(|(i, t)| (i, targets[i * k + t], 1.0)).collect();
-        let pull = sum_outer(&xt, x, &edges);
-        Problem { xt, x: x.clone(), labels: labels.to_vec(), targets, k, reg, pull }
+        let pull = sum_outer(&xt, &edges);
+        let gram = x * &xt;
+        let xdist: Vec<f32> = (0..n * n)
+            .map(|ab| {
+                let (a, b) = (ab / n, ab % n);
+                let d2 = (gram[(a, a)] + gram[(b, b)] - 2.0 * gram[(a, b)]).max(0.0);
+                // Rounded up: the Gram rounding plus the f32 cast.
+                ((d2 + 1e-12 * (gram[(a, a)] + gram[(b, b)]) + 1e-300).sqrt() * (1.0 + 1e-6)) as f32
+            })
+            .collect();
+        let target_r = (0..n).map(|a| (0..k).map(|t| xdist[a * n + targets[a * k + t]] as f64).fold(0.0, f64::max)).collect();
+        Problem { xt, xdist, target_r, labels: labels.to_vec(), targets, k, reg, pull }
     }
 
-    /// Max target distance per sample under `lx`.
+    /// Target distances per (sample, target) under `lx`.
     fn target_dists(&self, lx: &DMatrix<f64>) -> Vec<f64> {
         (0..self.xt.ncols() * self.k).map(|it| sq_dist_cols(lx, it / self.k, self.targets[it])).collect()
     }
 
-    fn build_active_set(&self, l: &DMatrix<f64>, lx: &DMatrix<f64>, tdist: &[f64], eps: f64) -> ActiveSet {
+    /// Full scan at `l`: all cross-class squared distances from one Gram product `lx^T lx`.
+    fn build_active_set(&self, l: &DMatrix<f64>, lx: &DMatrix<f64>, far: &[f64], eps: f64) -> ActiveSet {
         let n = self.xt.ncols();
-        let k = self.k;
-        let far: Vec<f64> = (0..n).map(|i| tdist[i * k..(i + 1) * k].iter().cloned().fold(0.0, f64::max)).collect();
-        let l_ref_inv = l.clone().try_inverse().filter(|m| m.iter().all(|v| v.is_finite()));
-        let eps = if l_ref_inv.is_some() { eps } else { 0.0 };
-        let (lo, hi) = ((1.0 - eps).powi(2), (1.0 + eps).powi(2));
-        let d2 = pairwise_sq(lx);
-        let mut pairs = Vec::new();
-        for b in 0..n {
-            for a in 0..b {
-                if self.labels[a] != self.labels[b] && lo * d2[(a, b)] < 1.0 + hi * far[a].max(far[b]) {
-                    pairs.push((a as u32, b as u32));
+        let delta = eps * spectral_norm_bound(l);
+        let gram = lx.transpose() * lx;
+        let norms: Vec<f64> = (0..n).map(|i| gram[(i, i)]).collect();
+        // Rounding of `|a|^2 + |b|^2 - 2 a.b` is below ~4 d u (|a|^2 + |b|^2); 1e-12 max |.|^2 covers it.
+        let round = 1e-12 * norms.iter().cloned().fold(0.0, f64::max) * (1.0 + lx.nrows() as f64 / 64.0);
+        let g = gram.as_slice();
+        let mut start = Vec::with_capacity(n + 1);
+        let (mut partner, mut s_ref, mut r) = (Vec::new(), Vec::new(), Vec::new());
+        let mut cover = Vec::with_capacity(n);
+        let mut rmax = Vec::with_capacity(n);
+        let mut row: Vec<(f64, f64, f64, u32)> = Vec::with_capacity(n);
+        for a in 0..n {
+            start.push(partner.len());
+            let c = ((1.0 + far[a]).sqrt() + delta * self.target_r[a]) * (1.0 + SLACK);
+            cover.push(c);
+            row.clear();
+            let col = &g[a * n..(a + 1) * n];
+            for (b, &gab) in col.iter().enumerate() {
+                if self.labels[b] != self.labels[a] {
+                    let sr = (norms[a] + norms[b] - 2.0 * gab - round).max(0.0).sqrt();
+                    let rab = self.xdist[a * n + b] as f64;
+                    let kk = sr - delta * rab;
+                    if kk < c {
+                        row.push((kk, sr, rab, b as u32));
+                    }
                 }
             }
+            // Sorted by the reference distance: at a later `L` the scan stops where
+            // `s_ref - delta_L rmax >= radius`, a prefix that grows with `delta_L`.
+            row.sort_unstable_by(|x, y| x.1.total_cmp(&y.1));
+            rmax.push(row.iter().map(|e| e.2).fold(0.0, f64::max));
+            for &(_, sr, rab, b) in &row {
+                s_ref.push(sr);
+                r.push(rab);
+                partner.push(b);
+            }
         }
-        ActiveSet { pairs, l_ref: l.clone(), l_ref_inv, eps }
+        start.push(partner.len());
+        ActiveSet { l_ref: l.clone(), delta, start, partner, s_ref, r, cover, rmax }
     }
 
     fn eval(&self, l: &DMatrix<f64>, set: &mut Option<ActiveSet>, eps_budget: f64, scans: &mut usize) -> Eval {
+        let n = self.xt.ncols();
         let lx = l * &self.xt;
         let k = self.k;
         let tdist = self.target_dists(&lx);
-        let valid = set.as_ref().is_some_and(|s| s.l_ref_inv.as_ref().is_some_and(|inv| ((l - &s.l_ref) * inv).norm() <= s.eps));
-        if !valid {
-            *set = Some(self.build_active_set(l, &lx, &tdist, eps_budget));
+        let far: Vec<f64> = (0..n).map(|i| tdist[i * k..(i + 1) * k].iter().cloned().fold(0.0, f64::max)).collect();
+        // Radius per anchor at this `l` (sqrt of 1 + the largest target distance).
+        let radius: Vec<f64> = far.iter().map(|f| (1.0 + f).sqrt() * (1.0 + SLACK)).collect();
+        let bound = |s: &ActiveSet| -> Option<f64> {
+            let dl = spectral_norm_bound(&(l - &s.l_ref)) * (1.0 + SLACK);
+            (dl <= s.delta && radius.iter().zip(&s.cover).all(|(r, c)| r <= c)).then_some(dl)
+        };
+        let mut dl = if eps_budget > 0.0 { set.as_ref().and_then(bound) } else { None };
+        if dl.is_none() {
+            *set = (eps_budget > 0.0).then(|| self.build_active_set(l, &lx, &far, eps_budget));
             *scans += 1;
+            dl = set.as_ref().map(|_| 0.0);
         }
-        let Some(s) = set.as_ref() else { unreachable!("active set built above") };
-        // Active triplets: (i, j~>i, l) with d(i, l) < 1 + d(i, j).
+        // Active triplets (a, j~>a, b): d(a, b) < 1 + d(a, j), b of another class.
         let mut edges: Vec<(usize, usize, f64)> = Vec::new();
+        let mut tcount = vec![0usize; n * k];
         let mut active = 0usize;
-        for &(a, b) in &s.pairs {
-            let (a, b) = (a as usize, b as usize);
+        let mut visit = |a: usize, b: usize, edges: &mut Vec<(usize, usize, f64)>| {
             let dab = sq_dist_cols(&lx, a, b);
-            for (i, other) in [(a, b), (b, a)] {
-                let mut cnt = 0usize;
-                for t in 0..k {
-                    if dab < 1.0 + tdist[i * k + t] {
-                        edges.push((i, self.targets[i * k + t], 1.0));
-                        cnt += 1;
+            let mut cnt = 0usize;
+            for t in 0..k {
+                if dab < 1.0 + tdist[a * k + t] {
+                    tcount[a * k + t] += 1;
+                    cnt += 1;
+                }
+            }
+            if cnt > 0 {
+                edges.push((a, b, -(cnt as f64)));
+                active += cnt;
+            }
+        };
+        match (set.as_ref(), dl) {
+            (Some(s), Some(dl)) => {
+                for a in 0..n {
+                    let ra = radius[a];
+                    let stop = ra + dl * s.rmax[a];
+                    for idx in s.start[a]..s.start[a + 1] {
+                        if s.s_ref[idx] >= stop {
+                            break;
+                        }
+                        if s.s_ref[idx] - dl * s.r[idx] < ra {
+                            visit(a, s.partner[idx] as usize, &mut edges);
+                        }
                     }
                 }
-                if cnt > 0 {
-                    edges.push((i, other, -(cnt as f64)));
-                    active += cnt;
+            }
+            _ => {
+                for a in 0..n {
+                    for b in 0..n {
+                        if self.labels[a] != self.labels[b] {
+                            visit(a, b, &mut edges);
+                        }
+                    }
                 }
             }
         }
-        let push = sum_outer(&self.xt, &self.x, &edges);
+        for (it, &c) in tcount.iter().enumerate() {
+            if c > 0 {
+                edges.push((it / k, self.targets[it], c as f64));
+            }
+        }
+        let push = sum_outer(&self.xt, &edges);
         let g = &self.pull * self.reg + push * (1.0 - self.reg);
         let lg = l * g;
         let objective = active as f64 * (1.0 - self.reg) + lg.dot(l);
@@ -348,6 +476,43 @@ mod tests {
         assert_eq!(a.active, b.active);
         assert!((a.objective - b.objective).abs() < 1e-9);
         assert!((a.grad - b.grad).norm() < 1e-9);
+    }
+
+    /// A whole fit with the active set follows the same path as full scans at every evaluation.
+    #[test]
+    fn fit_with_active_set_equals_full_scans() {
+        let n = 90;
+        let x = DMatrix::from_fn(n, 4, |i, j| (((i * 31 + j * 17) % 23) as f64 / 5.0).sin() * 2.0 + (i % 3) as f64 * 0.4 * (j as f64 - 1.5));
+        let y: Vec<i64> = (0..n).map(|i| (i % 3) as i64).collect();
+        let base = LmnnConfig { max_iter: 300, ..LmnnConfig::default() };
+        let (la, ra) = fit(&x, &y, &LmnnConfig { active_set_eps: 0.5, ..base }).expect("fit");
+        let (lb, rb) = fit(&x, &y, &LmnnConfig { active_set_eps: 0.0, ..base }).expect("fit");
+        assert_eq!((ra.iterations, ra.evaluations, ra.active_triplets), (rb.iterations, rb.evaluations, rb.active_triplets));
+        assert!(ra.full_scans < ra.evaluations / 4, "{ra:?}");
+        assert_eq!(rb.full_scans, rb.evaluations);
+        assert!((la - lb).norm() < 1e-9);
+    }
+
+    #[test]
+    fn spectral_bound_is_an_upper_bound_and_tight() {
+        let a = DMatrix::from_fn(6, 6, |i, j| ((i * 5 + j * 3) % 7) as f64 - 3.0 + if i == j { 0.5 } else { 0.0 });
+        let sv = a.clone().singular_values().max();
+        let b = spectral_norm_bound(&a);
+        assert!(b >= sv * (1.0 - 1e-12) && b <= sv * 6f64.powf(1.0 / 32.0) * (1.0 + 1e-12), "{b} vs {sv}");
+        assert!(b < a.norm());
+        assert_eq!(spectral_norm_bound(&DMatrix::zeros(3, 3)), 0.0);
+    }
+
+    /// Local timing aid (not CI): `SUBNAV_LMNN_BENCH_CSV=standardised.csv cargo test --release -p subnav-topo bench_csv -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn bench_csv() {
+        let path = std::env::var("SUBNAV_LMNN_BENCH_CSV").expect("SUBNAV_LMNN_BENCH_CSV");
+        let (x, y) = crate::lmnn::model::read_csv(std::path::Path::new(&path)).expect("csv");
+        let eps: f64 = std::env::var("SUBNAV_LMNN_EPS").ok().map_or(LmnnConfig::default().active_set_eps, |e| e.parse().expect("eps"));
+        let t0 = std::time::Instant::now();
+        let (_l, rep) = fit(&x, &y, &LmnnConfig { active_set_eps: eps, ..LmnnConfig::default() }).expect("fit");
+        println!("eps {eps}: {:.3} s {rep:?}", t0.elapsed().as_secs_f64());
     }
 
     #[test]
