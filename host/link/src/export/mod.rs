@@ -4,6 +4,7 @@
 pub mod csv;
 pub mod mcap;
 pub mod schema;
+pub mod topics;
 
 /// Which clock stamps exported messages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
