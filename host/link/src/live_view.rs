@@ -38,6 +38,12 @@ pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 /// Events queued between the link and the publisher before new ones are dropped.
 pub const DEFAULT_QUEUE: usize = 16_384;
 
+/// Messages the server queues per client before it drops the oldest.
+pub const CLIENT_BACKLOG: usize = 8192;
+
+/// Longest wait for the clients' connections to close at the end of a session.
+pub const SHUTDOWN_BOUND: Duration = Duration::from_secs(2);
+
 /// One event of a dive, as the link or the simulation sees it.
 #[derive(Debug, Clone)]
 pub enum LiveEvent {
@@ -143,6 +149,7 @@ impl LiveView {
             .name(format!("subnav {}", env!("CARGO_PKG_VERSION")))
             .bind(addr.ip().to_string(), addr.port())
             .listener(Arc::new(Listener(shared.clone())))
+            .message_backlog_size(CLIENT_BACKLOG)
             .start_blocking()
             .map_err(|e| anyhow!("starting the Foxglove server on {addr}: {e}"))?;
         let bound = SocketAddr::new(addr.ip(), server.port());
@@ -220,7 +227,12 @@ impl LiveView {
                 // The clients' outboxes drain while the server still runs.
                 std::thread::sleep(Duration::from_millis(200).min(linger));
             }
-            s.stop().wait_blocking();
+            // A graceful close, bounded: a client that stopped reading cannot complete one, and
+            // when the bound passes, dropping the shutdown handle aborts its task.
+            let shutdown = s.stop();
+            if let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_time().build() {
+                let _ = rt.block_on(async { tokio::time::timeout(SHUTDOWN_BOUND, shutdown.wait()).await });
+            }
         }
         LiveSummary {
             address: self.addr.to_string(),

@@ -63,6 +63,10 @@ pub struct Args {
     pub seeds: Option<super::args::Seeds>,
     #[command(flatten)]
     pub live: super::live::FoxgloveArgs,
+    /// Native runs: at most this many seconds of dive per second of wall time (e.g. 1 to watch
+    /// in real time; default: as fast as it goes). The results are the same at any speed.
+    #[arg(long, requires = "native", value_parser = super::args::f64_positive_upto(1e6))]
+    pub speed: Option<f64>,
 }
 
 fn load(args: &Args) -> Result<Scenario> {
@@ -211,12 +215,21 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let result: DiveResult = if args.native {
         // Host time of a native run: the firmware time plus the scenario's start (as in its recording).
         let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
+        let started = std::time::Instant::now();
         let observe = |t_us: u64, m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
             if let Some(f) = &feed {
                 f.on_uplink(t0 + t_us, m, map);
             }
+            if let (Some(speed), subnav_wire::Uplink::Nav(_)) = (args.speed, m) {
+                // Pace on the navigation solutions: dive time ahead of wall time x speed waits.
+                let due = Duration::from_secs_f64(t_us as f64 * 1e-6 / speed);
+                if let Some(wait) = due.checked_sub(started.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
         };
-        let observer: Option<subnav_sil::sil::NativeObserver> = if feed.is_some() { Some(&observe) } else { None };
+        let observer: Option<subnav_sil::sil::NativeObserver> =
+            if feed.is_some() || args.speed.is_some() { Some(&observe) } else { None };
         let run = run_native_observed(&sc, Some(&progress), record.is_some(), observer);
         if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;

@@ -181,7 +181,10 @@ impl Projector {
                 let [w, x, y, z] = n.att_nb_wxyz;
                 let pose = json!({"position": {"x": n.pos_ned_m[0], "y": n.pos_ned_m[1], "z": n.pos_ned_m[2]},
                                   "orientation": {"x": x, "y": y, "z": z, "w": w}});
-                push(out, POSE, json!({"timestamp": stamp(t), "frame_id": FRAME, "pose": pose.clone()}));
+                // A pose only once it is a number (Foxglove's schema has no "no value").
+                if n.pos_ned_m.iter().chain(&n.att_nb_wxyz).all(|v| v.is_finite()) {
+                    push(out, POSE, json!({"timestamp": stamp(t), "frame_id": FRAME, "pose": pose.clone()}));
+                }
                 let [sn, se, sd] = n.sigma_pos_m.map(f);
                 let cne = f(n.cov_ne_m2);
                 let cov = [sn * sn, cne, 0.0, cne, se * se, 0.0, 0.0, 0.0, sd * sd];
@@ -241,7 +244,7 @@ impl Projector {
         if n.mode == NavMode::Uninitialised || p.iter().any(|v| !v.is_finite()) {
             return;
         }
-        self.path.push((n.t_us, p));
+        self.path.push((t, p));
         let t0 = *self.segment_t0_us.get_or_insert(n.t_us);
         if n.t_us.saturating_sub(t0) < SEGMENT_US {
             return;
@@ -250,9 +253,13 @@ impl Projector {
         let from = self.segment_start.saturating_sub(1);
         let pts: Vec<[f64; 3]> = self.path.get(from..).unwrap_or(&[]).iter().map(|(_, p)| *p).collect();
         let seg = entity(t, &format!("segment-{}", self.segments), vec![line_strip(&pts, 2.0, color(0.1, 0.6, 1.0, 1.0))], vec![]);
-        let [sn, se, sd] = n.sigma_pos_m.map(f);
-        let ell = entity(t, "sigma3", vec![], vec![sphere(p, [6.0 * sn, 6.0 * se, 6.0 * sd], color(1.0, 0.6, 0.1, 0.3))]);
-        out.push(Msg { topic: TRAJECTORY.into(), t_us: t, publish_us: t_host_us, json: json!({"deletions": [], "entities": [seg, ell]}) });
+        let mut entities = vec![seg];
+        let sigma = n.sigma_pos_m.map(f);
+        if sigma.iter().all(|s| s.is_finite()) {
+            let size = sigma.map(|s| 6.0 * s);
+            entities.push(entity(t, "sigma3", vec![], vec![sphere(p, size, color(1.0, 0.6, 0.1, 0.3))]));
+        }
+        out.push(Msg { topic: TRAJECTORY.into(), t_us: t, publish_us: t_host_us, json: json!({"deletions": [], "entities": entities}) });
         self.segments += 1;
         self.segment_start = self.path.len();
         self.segment_t0_us = Some(n.t_us);
@@ -263,10 +270,7 @@ impl Projector {
     pub fn trajectory_history(&self) -> Option<Msg> {
         let (t_last, _) = self.path.last()?;
         let pts: Vec<[f64; 3]> = self.path.iter().map(|(_, p)| *p).collect();
-        let t = match self.time {
-            TimeBase::Host => *t_last,
-            TimeBase::Sensor => *t_last,
-        };
+        let t = *t_last;
         let e = entity(t, "history", vec![line_strip(&pts, 2.0, color(0.1, 0.6, 1.0, 1.0))], vec![]);
         Some(Msg { topic: TRAJECTORY.into(), t_us: t, publish_us: t, json: json!({"deletions": [], "entities": [e]}) })
     }
