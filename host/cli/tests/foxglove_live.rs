@@ -152,3 +152,35 @@ fn a_client_that_never_reads_neither_delays_the_run_nor_costs_the_recording() {
     assert_eq!(live.1, plain.1);
     assert!(live.0 == plain.0, "the recordings differ ({} vs {} chunks)", live.0.len(), plain.0.len());
 }
+
+/// `subnav export --foxglove --speed`: a recording served to the same client on the same topics.
+#[test]
+fn a_recording_is_served_by_export_at_a_speed() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("dive.snrec");
+    let out = subnav().args(run_args(&rec)).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let port = free_port();
+    let viewer = client("read", port, 120);
+    let t0 = Instant::now();
+    let out = subnav()
+        .arg("export")
+        .arg(&rec)
+        .args(["--foxglove", &format!("127.0.0.1:{port}"), "--foxglove-wait-s", "60", "--speed", "20"])
+        .output()
+        .unwrap();
+    let took = t0.elapsed();
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("foxglove: 1 clients") && stderr.contains(" 0 dropped"), "{stderr}");
+    // 60 s recorded at 20x: about 3 s of serving (paced, not all at once).
+    assert!(took >= Duration::from_millis(2500), "{took:?}");
+    let v = viewer.wait_with_output_timeout();
+    let s: serde_json::Value = serde_json::from_str(v.lines().last().unwrap_or("")).unwrap_or_else(|e| panic!("{e}: {v}"));
+    assert_eq!(s["invalid"].as_array().unwrap().len(), 0, "{s}");
+    for t in s["advertised"].as_array().unwrap() {
+        assert!(s["validated"][t.as_str().unwrap()].as_u64().unwrap_or(0) >= 1, "no valid message on {t}: {s}");
+    }
+    assert!(s["counts"]["/subnav/nav"].as_u64().unwrap() > 550, "{s}");
+    assert!(s["advertised"].as_array().unwrap().iter().any(|t| t == "/subnav/trajectory"), "{s}");
+}

@@ -348,3 +348,25 @@ fn publish(ctx: Arc<Context>, rx: Receiver<Cmd>, shared: Arc<Shared>, time: Time
     topics.sort();
     (messages, replays, topics)
 }
+
+/// Serve a decoded recording at `speed` times its own pace (host receive times; 1 = as
+/// recorded); returns the events sent. `events` in host-time order ([`crate::export::events`]).
+pub fn serve_events(live: &LiveView, events: &[(u64, crate::export::Event<'_>)], speed: f64) -> u64 {
+    let Some(&(t0, _)) = events.first() else { return 0 };
+    let started = Instant::now();
+    let mut sent = 0;
+    for (t, ev) in events {
+        let due = Duration::from_secs_f64(t.saturating_sub(t0) as f64 * 1e-6 / speed.max(1e-9));
+        if let Some(wait) = due.checked_sub(started.elapsed()) {
+            std::thread::sleep(wait);
+        }
+        let t_host_us = *t;
+        live.send(match ev {
+            crate::export::Event::Msg(m) => LiveEvent::Uplink { t_host_us, msg: (*m).clone() },
+            crate::export::Event::Log(l) => LiveEvent::Log { t_host_us, line: (*l).clone() },
+            crate::export::Event::Corrupt(c) => LiveEvent::Corrupt { t_host_us, error: c.to_string() },
+        });
+        sent += 1;
+    }
+    sent
+}

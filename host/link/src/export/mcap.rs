@@ -9,9 +9,8 @@ use std::io::{Seek, Write};
 
 use anyhow::{Context, Result, anyhow};
 use serde::Serialize;
-use subnav_wire::Uplink;
 
-use super::TimeBase;
+use super::{Event, TimeBase};
 use super::topics::{Msg, Projector, schema_of};
 use crate::record::session::Session;
 
@@ -71,34 +70,18 @@ pub fn write<W: Write + Seek>(session: &Session, out: W, time: TimeBase, mut pro
     let mut projector = Projector::new(time);
     let mut msgs = Vec::new();
 
-    // Merge the streams in host-time order (each is already in order).
-    enum Ev<'a> {
-        Msg(&'a Uplink),
-        Log(&'a crate::defmt_log::LogLine),
-        Corrupt(&'a str),
-    }
-    let mut evs: Vec<(u64, usize, Ev)> = Vec::with_capacity(session.messages.len() + session.logs.len() + session.corrupt.len());
-    for (i, m) in session.messages.iter().enumerate() {
-        evs.push((m.t_host_us, i, Ev::Msg(&m.item)));
-    }
-    for (i, l) in session.logs.iter().enumerate() {
-        evs.push((l.t_host_us, i, Ev::Log(&l.item)));
-    }
-    for (i, c) in session.corrupt.iter().enumerate() {
-        evs.push((c.t_host_us, i, Ev::Corrupt(&c.item)));
-    }
-    evs.sort_by_key(|(t, i, ev)| (*t, matches!(ev, Ev::Log(_)), *i));
+    let evs = super::events(session);
     let total = evs.len() as u64;
 
-    for (k, (t_host, _, ev)) in evs.into_iter().enumerate() {
+    for (k, (t_host, ev)) in evs.into_iter().enumerate() {
         if k % 4096 == 0 {
             progress(k as u64, total);
         }
         msgs.clear();
         match ev {
-            Ev::Msg(m) => projector.uplink(t_host, m, &mut msgs),
-            Ev::Log(l) => projector.log(t_host, l, &mut msgs),
-            Ev::Corrupt(c) => projector.corrupt(t_host, c, &mut msgs),
+            Event::Msg(m) => projector.uplink(t_host, m, &mut msgs),
+            Event::Log(l) => projector.log(t_host, l, &mut msgs),
+            Event::Corrupt(c) => projector.corrupt(t_host, c, &mut msgs),
         }
         for m in &msgs {
             o.write(m)?;
