@@ -423,7 +423,6 @@ pub fn scene_update_schema() -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use subnav_wire::*;
 
     fn nav(t_us: u64, n_m: f32) -> Uplink {
         Uplink::Nav(NavSolution {
