@@ -131,7 +131,18 @@ fn mcap_export_reads_back_with_expected_channels_schemas_and_counts() {
     }
     assert_eq!(got["/subnav/pose"], ("foxglove.PoseInFrame".into(), "jsonschema".into(), "json".into(), counts["nav"]));
     assert_eq!(got["/subnav/link/corrupt"].3, 3);
-    assert_eq!(got.len(), counts.len() + 2, "{got:?}");
+    // The derived topics of the shared definition (`subnav_link::export::topics`), as live.
+    assert_eq!(got["/subnav/pose/covariance"].3, counts["nav"]);
+    assert_eq!(got["/subnav/pose/covariance"].0, "subnav.PoseCovariance");
+    assert_eq!(got["/subnav/health/summary"].3, counts["health"]);
+    assert_eq!(got["/subnav/faults"], ("foxglove.Log".into(), "jsonschema".into(), "json".into(), counts["fault"]));
+    assert!(got["/subnav/trajectory"].3 >= 2, "{got:?}");
+    let derived = ["/subnav/pose", "/subnav/pose/covariance", "/subnav/trajectory", "/subnav/health/summary", "/subnav/faults", "/subnav/link/corrupt"];
+    let compass_fixes = got.get("/subnav/compass/fix").map_or(0, |_| 1);
+    assert_eq!(got.len(), counts.len() + derived.len() + compass_fixes, "{got:?}");
+    for (topic, (name, ..)) in &got {
+        assert_eq!(&subnav_link::export::topics::schema_of(topic).unwrap().0, name, "{topic}");
+    }
     // Content survives: the 10th nav message's position.
     assert_eq!(nav_json[10]["pos_ned_m"], serde_json::json!([10.0, -10.0, 3.0]));
     // The summary section has the statistics the readers use.

@@ -4,6 +4,7 @@
 
 pub mod defmt_log;
 pub mod export;
+pub mod live_view;
 pub mod output;
 pub mod qemu;
 pub mod record;

@@ -111,6 +111,9 @@ pub struct DiveOptions<'a> {
     pub timeout: Option<Duration>,
     /// Called with every navigation message's status (progress display).
     pub progress: Option<&'a dyn Fn(&LiveStatus)>,
+    /// Called with every uplink message as it is decoded, and the map in the loop (a live view:
+    /// `subnav run --foxglove`). It only watches.
+    pub observer: Option<&'a dyn Fn(&Uplink, Option<&crate::map_loop::MapLoop>)>,
 }
 
 /// Run `sc` with the QEMU firmware `elf`.
@@ -137,6 +140,9 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
             if let Some(map) = &map {
                 map.on_uplink(&m);
+            }
+            if let Some(obs) = opts.observer {
+                obs(&m, map.as_ref());
             }
             if !scored(&m) {
                 return;

@@ -55,8 +55,13 @@ impl ByteLink for InProcessLink {
     }
 }
 
+/// Called with every uplink message of a native run as it is decoded (firmware time of its
+/// writing, µs) and the map in the loop: a live view of the run (`subnav run --native --foxglove`).
+pub type NativeObserver<'a> = &'a dyn Fn(u64, &Uplink, Option<&MapLoop>);
+
 /// Telemetry decoded as it is written (and kept as frames, stamped with firmware time).
-struct Collect {
+struct Collect<'a> {
+    observer: Option<NativeObserver<'a>>,
     /// Keep every frame and message (for a recording or a replay); otherwise only the messages
     /// the scoring reads ([`crate::dive::scored`]), so a day-long dive fits in memory.
     keep_all: bool,
@@ -69,7 +74,7 @@ struct Collect {
     frames: Vec<(u64, Vec<u8>)>,
 }
 
-impl TelemetrySink for Collect {
+impl TelemetrySink for Collect<'_> {
     fn write_frame(&mut self, frame: &[u8]) -> bool {
         if self.keep_all {
             self.frames.push((self.now_us, frame.to_vec()));
@@ -82,6 +87,9 @@ impl TelemetrySink for Collect {
                     }
                     if let Some(map) = &self.map {
                         map.on_uplink(&m);
+                    }
+                    if let Some(obs) = self.observer {
+                        obs(self.now_us, &m, self.map.as_ref());
                     }
                     if self.keep_all || crate::dive::scored(&m) {
                         self.msgs.push(m)
@@ -121,8 +129,20 @@ pub fn run_native_scored(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>) 
 }
 
 fn run_native_keeping(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>, keep_all: bool) -> NativeRun {
+    run_native_observed(sc, progress, keep_all, None)
+}
+
+/// As [`run_native`] (`keep_all`) or [`run_native_scored`], with every message also shown to
+/// `observer` as it is decoded. The observer only watches: the run is the same with or without.
+pub fn run_native_observed(
+    sc: &Scenario,
+    progress: Option<&dyn Fn(&LiveStatus)>,
+    keep_all: bool,
+    observer: Option<NativeObserver<'_>>,
+) -> NativeRun {
     let map = sc.map_loop();
     let mut sink = Collect {
+        observer,
         keep_all,
         map: map.clone(),
         last_nav: None,

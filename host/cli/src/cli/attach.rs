@@ -41,6 +41,8 @@ pub struct Args {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     pub duration_s: Option<f64>,
+    #[command(flatten)]
+    pub live: super::live::FoxgloveArgs,
 }
 
 /// Open the first probe and attach to `chip`.
@@ -67,6 +69,7 @@ pub fn stream_rtt(
     serial: Option<(String, u32)>,
     record: Option<&Path>,
     duration_s: Option<f64>,
+    live: Option<&subnav_link::live_view::LiveView>,
     mut on_text: impl FnMut(&str),
 ) -> Result<LiveStatus> {
     let elf_bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
@@ -123,6 +126,7 @@ pub fn stream_rtt(
                         w.chunk_now(Stream::Uplink, &b)?;
                     }
                     dec.feed(&b, |e| {
+                        super::live::link_event(live, &e);
                         status.see(&e);
                         if let subnav_link::LinkEvent::Message(m) = &e {
                             on_text(&print::text(m));
@@ -134,7 +138,10 @@ pub fn stream_rtt(
                     if let Some(w) = writer.as_mut() {
                         w.chunk_now(Stream::Defmt, &b)?;
                     }
-                    logs.feed(&b, |l| on_text(&format!("log     {l}")));
+                    logs.feed(&b, |l| {
+                        super::live::log_line(live, &l);
+                        on_text(&format!("log     {l}"))
+                    });
                 }
             }
         }
@@ -154,11 +161,14 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         bail!("{} does not exist: build the firmware first (`cargo xtask build --board stm32f4`)", args.elf.display());
     }
     let serial = args.serial.clone().map(|s| (s, args.baud));
-    let status = stream_rtt(&args.chip, &args.elf, serial, args.record.as_deref(), args.duration_s, |line| {
+    let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
+    let status = stream_rtt(&args.chip, &args.elf, serial, args.record.as_deref(), args.duration_s, live.as_ref(), |line| {
         if format == Format::Text {
             println!("{line}");
         }
-    })?;
+    });
+    super::live::finish(live);
+    let status = status?;
     match format {
         Format::Text => eprintln!("{}", status.line()),
         Format::Json => println!("{}", serde_json::json!({"type": "summary", "status": status})),

@@ -27,6 +27,19 @@ pub struct Args {
     /// Clock for message times.
     #[arg(long, value_enum, default_value_t = TimeBase::Host)]
     pub time: TimeBase,
+    /// Serve the recording to Foxglove (see --foxglove) on the MCAP topics, at --speed.
+    #[command(flatten)]
+    pub live: super::live::FoxgloveArgs,
+    /// With --foxglove: seconds of recording served per second (1 = as recorded, at least 1).
+    #[arg(long, default_value_t = 1.0, requires = "foxglove", value_parser = parse_speed)]
+    pub speed: f64,
+}
+
+fn parse_speed(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (1.0..=1e6).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?}: a speed in [1, 1e6] (1 = as recorded)")),
+    }
 }
 
 /// Decode a recording, with the defmt table of `elf` (or the recording's ELF, when it exists).
@@ -72,8 +85,8 @@ fn refuse_dir_holding_inputs(what: &str, dir: &std::path::Path, inputs: &[&std::
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
-    if args.mcap.is_none() && args.csv.is_none() {
-        bail!("say what to write: --mcap FILE.mcap and/or --csv DIRECTORY");
+    if args.mcap.is_none() && args.csv.is_none() && args.live.foxglove.is_none() {
+        bail!("say what to write: --mcap FILE.mcap and/or --csv DIRECTORY (or serve it with --foxglove)");
     }
     let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path()).chain(args.elf.as_deref()).collect();
     if let Some(p) = &args.mcap {
@@ -120,6 +133,19 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 result["csv"] = json!(files.iter().map(|(p, n)| json!({"path": p.display().to_string(), "rows": n})).collect::<Vec<_>>())
             }
         }
+    }
+    if args.live.foxglove.is_some() {
+        let live = super::live::start(&args.live, args.time)?;
+        if let Some(l) = &live {
+            let events = export::events(&session);
+            let span_s = match (events.first(), events.last()) {
+                (Some(a), Some(b)) => b.0.saturating_sub(a.0) as f64 * 1e-6,
+                _ => 0.0,
+            };
+            eprintln!("foxglove: serving {} events ({span_s:.1} s recorded) at {}x", events.len(), args.speed);
+            subnav_link::live_view::serve_events(l, &events, args.speed);
+        }
+        super::live::finish(live);
     }
     if format == Format::Json {
         println!("{result}");

@@ -72,6 +72,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             baud: args.baud,
             record: args.record,
             duration_s: args.duration_s,
+            live: Default::default(),
         };
         return super::attach::run(a, format);
     }

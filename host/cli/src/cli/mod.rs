@@ -14,6 +14,7 @@ pub mod filter;
 #[cfg(feature = "probe")]
 pub mod flash;
 pub mod ice;
+pub mod live;
 pub mod lmnn;
 pub mod map;
 pub mod phasecorr;

@@ -38,6 +38,8 @@ pub struct Args {
     /// Seed of the simulated dive (default scenario: survey at 10 m, Bay of Biscay, June morning).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    #[command(flatten)]
+    pub live: super::live::FoxgloveArgs,
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
@@ -54,11 +56,25 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         cfg.board_args = scenario.board_args();
         Box::new(subnav_sil::SimHead::new(&scenario))
     };
+    let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
+    // With the simulated sensors, the viewer also gets the truth.
+    let feed = live.as_ref().filter(|_| !args.no_sensors).map(|l| super::live::SimFeed::new(l, &scenario));
     let outcome = qemu::run_with_bus(&cfg, bus, |event, _| match event {
-        QemuEvent::Link(e) => print::event(&e, format),
-        QemuEvent::Log(l) => print::log(&l, format),
+        QemuEvent::Link(e) => {
+            match (&e, &feed) {
+                (subnav_link::LinkEvent::Message(m), Some(f)) => f.on_uplink(subnav_link::record::now_unix_us(), m, None),
+                _ => super::live::link_event(live.as_ref(), &e),
+            }
+            print::event(&e, format)
+        }
+        QemuEvent::Log(l) => {
+            super::live::log_line(live.as_ref(), &l);
+            print::log(&l, format)
+        }
     })
     .map(|(o, _)| o);
+    drop(feed);
+    super::live::finish(live);
     cfg.raw_tap = None;
     if let Some(r) = recorder {
         r.finish()?;

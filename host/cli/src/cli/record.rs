@@ -49,6 +49,8 @@ pub struct Args {
     /// End with an error when the source sends nothing for this long, s (default: wait).
     #[arg(long, allow_hyphen_values = true, value_parser = super::args::f64_positive_upto(MAX_RECORD_S))]
     pub idle_timeout_s: Option<f64>,
+    #[command(flatten)]
+    pub live: super::live::FoxgloveArgs,
 }
 
 /// Longest `--duration-s` of a live recording, s (a year).
@@ -124,6 +126,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         subnav_link::output::refuse_input_as_output("--out", &args.out, &[elf])?;
     }
     let mut reader = source.open()?;
+    let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
     // Under a temporary name until the first data arrives: a source that fails or closes at
     // once leaves an old recording at --out untouched.
     let mut w = Writer::create_atomic(&args.out, &meta)?;
@@ -143,13 +146,17 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             write_err = Some(e);
             return false;
         }
-        dec.feed(bytes, |e| status.see(&e));
+        dec.feed(bytes, |e| {
+            super::live::link_event(live.as_ref(), &e);
+            status.see(&e)
+        });
         status.link = dec.stats();
         status.seconds = started.elapsed().as_secs_f64();
         bar.set_message(status.line());
         limit.is_none_or(|l| started.elapsed() < l)
     });
     bar.finish_and_clear();
+    super::live::finish(live);
     if let Some(e) = write_err {
         return Err(e);
     }
@@ -174,7 +181,10 @@ fn finish(args: &Args, status: &LiveStatus, format: Format) {
 #[cfg(feature = "probe")]
 fn record_rtt(args: &Args, chip: &str, format: Format) -> Result<ExitCode> {
     let Some(elf) = &args.elf else { bail!("--chip needs --elf (the RTT control block is found through the ELF's symbols)") };
-    let status = super::attach::stream_rtt(chip, elf, None, Some(&args.out), args.duration_s, |_| {})?;
+    let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
+    let status = super::attach::stream_rtt(chip, elf, None, Some(&args.out), args.duration_s, live.as_ref(), |_| {});
+    super::live::finish(live);
+    let status = status?;
     finish(args, &status, format);
     Ok(ExitCode::SUCCESS)
 }

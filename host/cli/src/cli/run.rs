@@ -16,9 +16,10 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::Format;
+use subnav_link::export::TimeBase;
 use subnav_sil::Scenario;
 use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_csv};
-use subnav_sil::sil::{run_native, run_native_scored};
+use subnav_sil::sil::{run_native_observed, run_native_scored};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -58,8 +59,14 @@ pub struct Args {
     pub quiet: bool,
     /// Run the scenario once per seed (`N`, `A..B`, `A..=B`; native only) and print one line
     /// per seed and the mean of each figure.
-    #[arg(long, value_parser = super::args::parse_seeds, requires = "native", conflicts_with_all = ["record", "truth"])]
+    #[arg(long, value_parser = super::args::parse_seeds, requires = "native", conflicts_with_all = ["record", "truth", "foxglove"])]
     pub seeds: Option<super::args::Seeds>,
+    #[command(flatten)]
+    pub live: super::live::FoxgloveArgs,
+    /// Native runs: at most this many seconds of dive per second of wall time (e.g. 1 to watch
+    /// in real time; default: as fast as it goes). The results are the same at any speed.
+    #[arg(long, requires = "native", value_parser = super::args::f64_positive_upto(1e6))]
+    pub speed: Option<f64>,
 }
 
 fn load(args: &Args) -> Result<Scenario> {
@@ -203,8 +210,27 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             s.mode, s.sigma_heading_deg, s.sigma_horizontal_m
         ));
     };
+    let live = super::live::start(&args.live, TimeBase::Host)?;
+    let feed = live.as_ref().map(|l| super::live::SimFeed::new(l, &sc));
     let result: DiveResult = if args.native {
-        let run = if record.is_some() { run_native(&sc, Some(&progress)) } else { run_native_scored(&sc, Some(&progress)) };
+        // Host time of a native run: the firmware time plus the scenario's start (as in its recording).
+        let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
+        let started = std::time::Instant::now();
+        let observe = |t_us: u64, m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
+            if let Some(f) = &feed {
+                f.on_uplink(t0 + t_us, m, map);
+            }
+            if let (Some(speed), subnav_wire::Uplink::Nav(_)) = (args.speed, m) {
+                // Pace on the navigation solutions: dive time ahead of wall time x speed waits.
+                let due = Duration::from_secs_f64(t_us as f64 * 1e-6 / speed);
+                if let Some(wait) = due.checked_sub(started.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+        };
+        let observer: Option<subnav_sil::sil::NativeObserver> =
+            if feed.is_some() || args.speed.is_some() { Some(&observe) } else { None };
+        let run = run_native_observed(&sc, Some(&progress), record.is_some(), observer);
         if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;
         }
@@ -216,10 +242,24 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         if !elf.exists() {
             bail!("{} does not exist: build it with `cargo xtask build` (or use --native)", elf.display());
         }
-        let opts = DiveOptions { record: record.as_deref(), timeout: Some(Duration::from_secs(args.timeout_s)), progress: Some(&progress) };
+        let observe = |m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
+            if let Some(f) = &feed {
+                f.on_uplink(subnav_link::record::now_unix_us(), m, map);
+            }
+        };
+        let observer: Option<&dyn Fn(&subnav_wire::Uplink, Option<&subnav_sil::map_loop::MapLoop>)> =
+            if feed.is_some() { Some(&observe) } else { None };
+        let opts = DiveOptions {
+            record: record.as_deref(),
+            timeout: Some(Duration::from_secs(args.timeout_s)),
+            progress: Some(&progress),
+            observer,
+        };
         run_dive(elf, &sc, &opts)?
     };
     pb.finish_and_clear();
+    drop(feed);
+    super::live::finish(live);
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
         std::fs::write(p, truth_csv(&sc, 0.1)).with_context(|| format!("writing the truth {}", p.display()))?;
