@@ -21,7 +21,12 @@ use subnav_wire::{
 use subnav_core::ephemeris::Observer;
 use subnav_core::head;
 use subnav_core::nav::NavError;
-use subnav_wire::{CameraTrigger, DvlSample, PolarizationSample, RawSample};
+use subnav_wire::{
+    CalibrationInUse, CameraTrigger, DvlSample, PolarizationSample, RawSample, Record, RecordKey, RecordReport, StoreStatus,
+};
+
+use crate::calibration;
+use crate::store::{RecordStore, StoreError};
 
 use crate::estimator::Estimator;
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
@@ -98,6 +103,49 @@ pub struct App {
     camera_frames: u32,
     faults: FaultLog,
     boot_us: u64,
+    /// Whether a working store is attached (store commands are refused without one).
+    store: StoreState,
+    /// Store commands waiting for the board's next [`App::service_store`], acknowledged then.
+    store_jobs: heapless::Deque<StoreJob, STORE_QUEUE>,
+    /// The run configuration changed and is not stored yet.
+    config_dirty: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StoreState {
+    Absent,
+    Working,
+    Failed,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum StoreOp {
+    Save(Record),
+    Read(RecordKey),
+    Erase(RecordKey),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StoreJob {
+    seq: u16,
+    op: StoreOp,
+}
+
+/// Store commands accepted between two services of the store.
+pub const STORE_QUEUE: usize = 4;
+
+/// Every key the head knows, in the order they are loaded at boot.
+pub fn record_keys() -> impl Iterator<Item = RecordKey> {
+    [RecordKey::RunConfig, RecordKey::Imu, RecordKey::DvlMounting]
+        .into_iter()
+        .chain((0..head::POLARIZATION_UNITS as u8).map(|unit| RecordKey::Polarization { unit }))
+}
+
+fn key_is_known(key: RecordKey) -> bool {
+    match key {
+        RecordKey::Polarization { unit } => usize::from(unit) < head::POLARIZATION_UNITS,
+        _ => true,
+    }
 }
 
 /// After boot, "no data yet" from a sensor is not reported as a fault for this long (µs).
@@ -156,6 +204,9 @@ impl App {
             camera_frames: 0,
             faults: FaultLog::new(),
             boot_us: 0,
+            store: StoreState::Absent,
+            store_jobs: heapless::Deque::new(),
+            config_dirty: false,
         }
     }
 
@@ -281,10 +332,179 @@ impl App {
         }
     }
 
-    /// Send the boot message. Call once after reset, before anything else.
+    /// Send the boot message of a head without a store. Call once after reset, before anything else.
     pub fn boot(&mut self, now_us: u64, sink: &mut impl TelemetrySink) {
+        self.send_boot(now_us, CalibrationInUse::NO_STORE, sink);
+    }
+
+    /// Load the configuration and calibrations from `store`, then send the boot message saying
+    /// which are in use, and a `Store` fault for anything that could not be used. A store that
+    /// is damaged beyond repair is erased (defaults in use, reported as `Reformatted`); one that
+    /// does not answer leaves the defaults in use and refuses store commands. Call once after
+    /// reset, before anything else.
+    pub fn boot_with_store(&mut self, now_us: u64, store: &mut dyn RecordStore, sink: &mut impl TelemetrySink) {
+        let mut cal = CalibrationInUse::NO_STORE;
+        let mut faults: heapless::Vec<FaultKind, 8> = heapless::Vec::new();
+        self.store = StoreState::Absent;
+        if store.present() {
+            self.store = StoreState::Working;
+            cal.store = StoreStatus::Empty;
+            for key in record_keys() {
+                match store.load(key) {
+                    Ok(Some(r)) => match self.use_record(&r) {
+                        Ok(()) => mark_in_use(&mut cal, key, true),
+                        Err(_) => {
+                            let _ = faults.push(FaultKind::Malformed);
+                        }
+                    },
+                    Ok(None) => {}
+                    Err(StoreError::BadRecord(_)) => {
+                        let _ = faults.push(FaultKind::BadCrc);
+                    }
+                    Err(StoreError::Corrupted) => {
+                        let _ = faults.push(FaultKind::BadCrc);
+                        self.use_defaults();
+                        cal = CalibrationInUse { store: StoreStatus::Reformatted, ..CalibrationInUse::NO_STORE };
+                        if let Err(e) = store.format() {
+                            let _ = faults.push(e.fault_kind());
+                            cal.store = StoreStatus::Failed;
+                            self.store = StoreState::Failed;
+                        }
+                        break;
+                    }
+                    Err(e) => {
+                        let _ = faults.push(e.fault_kind());
+                        self.use_defaults();
+                        cal = CalibrationInUse { store: StoreStatus::Failed, ..CalibrationInUse::NO_STORE };
+                        self.store = StoreState::Failed;
+                        break;
+                    }
+                }
+            }
+            let any = cal.config_stored || cal.imu_stored || cal.dvl_stored || cal.polarization_units_stored != 0;
+            if cal.store == StoreStatus::Empty && any {
+                cal.store = StoreStatus::Ok;
+            }
+        }
+        self.send_boot(now_us, cal, sink);
+        for kind in faults {
+            self.store_fault(now_us, kind, sink);
+        }
+    }
+
+    fn store_fault(&mut self, now_us: u64, kind: FaultKind, sink: &mut impl TelemetrySink) {
+        let f = SensorFault { source: FaultSource::Store, kind };
+        if let Some(count) = self.faults.record(now_us, f) {
+            warn!("store fault at {=u64} us ({=u32} so far)", now_us, count);
+            self.telemetry.send(&Uplink::Fault(Fault { t_us: now_us, source: f.source, kind, count }), sink);
+        }
+    }
+
+    /// Put a (checked) record in use.
+    fn use_record(&mut self, r: &Record) -> Result<(), Refusal> {
+        match r {
+            Record::RunConfig(c) => {
+                let c = calibration::run_config(c)?;
+                self.config = c;
+                self.nav_task.period_us = 1_000_000 / u64::from(c.nav_rate_hz.max(1));
+            }
+            Record::Polarization(p) => {
+                let m = calibration::unit_model(p)?;
+                self.estimator.set_polarization_unit(usize::from(p.unit), Some(m));
+            }
+            Record::Imu(c) => self.estimator.set_imu_correction(Some(calibration::ImuCorrection::new(c)?)),
+            Record::DvlMounting(d) => self.estimator.set_dvl_mounting(Some(calibration::dvl_mounting(d)?)),
+        }
+        Ok(())
+    }
+
+    /// Put the defaults of `key` in use.
+    fn use_default(&mut self, key: RecordKey) {
+        match key {
+            RecordKey::RunConfig => {
+                self.config = AppConfig::default();
+                self.nav_task.period_us = 1_000_000 / u64::from(self.config.nav_rate_hz);
+            }
+            RecordKey::Polarization { unit } => self.estimator.set_polarization_unit(usize::from(unit), None),
+            RecordKey::Imu => self.estimator.set_imu_correction(None),
+            RecordKey::DvlMounting => self.estimator.set_dvl_mounting(None),
+        }
+    }
+
+    fn use_defaults(&mut self) {
+        for key in record_keys() {
+            self.use_default(key);
+        }
+    }
+
+    /// Run the store commands received since the last call (and store a changed configuration),
+    /// acknowledging each. Boards call this from their main loop: flash writes and erases take
+    /// milliseconds, so they never run inside a command's decoding.
+    #[inline(never)] // keeps its temporaries out of the board loop's stack frame
+    pub fn service_store(&mut self, now_us: u64, store: &mut dyn RecordStore, sink: &mut impl TelemetrySink) {
+        if self.config_dirty && self.store == StoreState::Working {
+            self.config_dirty = false;
+            if let Err(e) = store.save(&Record::RunConfig(calibration::run_config_record(&self.config))) {
+                self.store_fault(now_us, e.fault_kind(), sink);
+            }
+        }
+        while let Some(job) = self.store_jobs.pop_front() {
+            let result = match job.op {
+                StoreOp::Save(r) => match store.save(&r) {
+                    Ok(()) => self.use_record(&r),
+                    Err(e) => {
+                        self.store_fault(now_us, e.fault_kind(), sink);
+                        Err(Refusal::StoreFailed)
+                    }
+                },
+                StoreOp::Read(key) => match store.load(key) {
+                    Ok(stored) => {
+                        self.telemetry.send(&Uplink::Record(RecordReport { t_us: now_us, key, stored }), sink);
+                        Ok(())
+                    }
+                    Err(StoreError::BadRecord(_)) => {
+                        self.store_fault(now_us, FaultKind::BadCrc, sink);
+                        self.telemetry.send(&Uplink::Record(RecordReport { t_us: now_us, key, stored: None }), sink);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        self.store_fault(now_us, e.fault_kind(), sink);
+                        Err(Refusal::StoreFailed)
+                    }
+                },
+                StoreOp::Erase(key) => match store.erase(key) {
+                    Ok(()) => {
+                        self.use_default(key);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        self.store_fault(now_us, e.fault_kind(), sink);
+                        Err(Refusal::StoreFailed)
+                    }
+                },
+            };
+            self.telemetry.send(&Uplink::Ack(CommandAck { seq: job.seq, result }), sink);
+        }
+    }
+
+    /// Check a store command and queue it for [`App::service_store`].
+    fn queue_store(&mut self, seq: u16, op: StoreOp) -> Result<(), Refusal> {
+        match self.store {
+            StoreState::Absent => return Err(Refusal::NotSupported),
+            StoreState::Failed => return Err(Refusal::StoreFailed),
+            StoreState::Working => {}
+        }
+        match op {
+            StoreOp::Save(r) => calibration::check(&r)?,
+            StoreOp::Read(k) | StoreOp::Erase(k) if !key_is_known(k) => return Err(Refusal::OutOfRange),
+            StoreOp::Read(_) | StoreOp::Erase(_) => {}
+        }
+        self.store_jobs.push_back(StoreJob { seq, op }).map_err(|_| Refusal::Busy)
+    }
+
+    fn send_boot(&mut self, now_us: u64, calibration: CalibrationInUse, sink: &mut impl TelemetrySink) {
         self.boot_us = now_us;
-        let boot = boot_message(self.board, FIRMWARE_VERSION, now_us);
+        let boot = boot_message(self.board, FIRMWARE_VERSION, now_us, calibration);
         info!(
             "subnav firmware {=u8}.{=u8}.{=u8} booting, protocol {=u16}",
             FIRMWARE_VERSION[0], FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], boot.protocol_version
@@ -342,6 +562,20 @@ impl App {
     /// own times (a fix its time of validity), so the arrival tick `_now_us` changes nothing.
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn handle_command(&mut self, _now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
+        let store_op = match cmd.command {
+            Command::SetRecord(r) => Some(StoreOp::Save(r)),
+            Command::ReadRecord(k) => Some(StoreOp::Read(k)),
+            Command::EraseRecord(k) => Some(StoreOp::Erase(k)),
+            _ => None,
+        };
+        if let Some(op) = store_op {
+            // Acknowledged by `service_store` once done, or now if refused.
+            if let Err(e) = self.queue_store(cmd.seq, op) {
+                warn!("command {=u16} refused", cmd.seq);
+                self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result: Err(e) }), sink);
+            }
+            return;
+        }
         let result = self.apply(cmd.command);
         match result {
             Ok(()) => info!("command {=u16} accepted", cmd.seq),
@@ -368,7 +602,14 @@ impl App {
             other => other,
         };
         match command {
-            Command::SetConfig(item) => self.apply_config(item),
+            Command::SetConfig(item) => {
+                let before = self.config;
+                self.apply_config(item)?;
+                if self.config != before && self.store == StoreState::Working {
+                    self.config_dirty = true;
+                }
+                Ok(())
+            }
             Command::SetTime { t_us, utc_unix_us } => {
                 let t = i64::try_from(t_us).map_err(|_| Refusal::OutOfRange)?;
                 // 2000-01-01 .. 2200-01-01: anything else is a host bug.
@@ -383,6 +624,8 @@ impl App {
                 self.request = BoardRequest::Reboot;
                 Ok(())
             }
+            // Queued by `handle_command`, never applied here.
+            Command::SetRecord(_) | Command::ReadRecord(_) | Command::EraseRecord(_) => Err(Refusal::NotSupported),
         }
     }
 
@@ -419,6 +662,22 @@ impl App {
             }
         }
         Ok(())
+    }
+}
+
+fn mark_in_use(cal: &mut CalibrationInUse, key: RecordKey, stored: bool) {
+    match key {
+        RecordKey::RunConfig => cal.config_stored = stored,
+        RecordKey::Imu => cal.imu_stored = stored,
+        RecordKey::DvlMounting => cal.dvl_stored = stored,
+        RecordKey::Polarization { unit } if unit < 8 => {
+            if stored {
+                cal.polarization_units_stored |= 1 << unit;
+            } else {
+                cal.polarization_units_stored &= !(1 << unit);
+            }
+        }
+        RecordKey::Polarization { .. } => {}
     }
 }
 
