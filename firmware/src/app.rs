@@ -1021,6 +1021,209 @@ mod tests {
         assert_eq!(occluded_units(&[(0, lit), (1, [900, 950, 880, 1000]), (3, lit)]), 0);
     }
 
+    /// A store in RAM, with the failures a flash has.
+    #[derive(Default)]
+    struct MemStore {
+        records: std::collections::BTreeMap<u8, Record>,
+        corrupted: bool,
+        bad_key: Option<u8>,
+        fail_writes: bool,
+        formats: u32,
+    }
+
+    impl RecordStore for MemStore {
+        fn load(&mut self, key: RecordKey) -> Result<Option<Record>, StoreError> {
+            if self.corrupted {
+                return Err(StoreError::Corrupted);
+            }
+            if self.bad_key == Some(key.id()) {
+                return Err(StoreError::BadRecord(subnav_wire::StoredError::Crc));
+            }
+            Ok(self.records.get(&key.id()).copied())
+        }
+        fn save(&mut self, r: &Record) -> Result<(), StoreError> {
+            if self.fail_writes {
+                return Err(StoreError::Bus(FaultKind::BusTimeout));
+            }
+            self.records.insert(r.key().id(), *r);
+            Ok(())
+        }
+        fn erase(&mut self, key: RecordKey) -> Result<(), StoreError> {
+            self.records.remove(&key.id());
+            Ok(())
+        }
+        fn format(&mut self) -> Result<(), StoreError> {
+            self.records.clear();
+            self.corrupted = false;
+            self.formats += 1;
+            Ok(())
+        }
+    }
+
+    fn boot_of(msgs: &[Uplink]) -> wire::Boot {
+        match msgs.first() {
+            Some(Uplink::Boot(b)) => *b,
+            other => panic!("first message is not Boot: {other:?}"),
+        }
+    }
+
+    fn acks_of(msgs: &[Uplink]) -> Vec<CommandAck> {
+        msgs.iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(*a) } else { None }).collect()
+    }
+
+    fn polarization(unit: u8, gain: f32) -> Record {
+        Record::Polarization(wire::PolarizationCalibration {
+            unit,
+            gain: [gain; 4],
+            offset_counts: [head::POLARIZATION_OFFSET_COUNTS; 4],
+            polarizer_rad: core::array::from_fn(|k| (k as f32 * 45.0).to_radians()),
+            extinction_ratio: [head::POLARIZER_EXTINCTION_RATIO; 4],
+        })
+    }
+
+    #[test]
+    fn boot_uses_and_reports_the_stored_records() {
+        let mut store = MemStore::default();
+        let cfg = wire::RunConfigRecord { nav_rate_hz: 25, stream_raw: false, water_density_kgm3: 1010.0, origin: None };
+        store.save(&Record::RunConfig(cfg)).unwrap();
+        store.save(&polarization(2, 1.05)).unwrap();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let b = boot_of(&decode_all(&out));
+        assert_eq!(b.calibration.store, StoreStatus::Ok);
+        assert!(b.calibration.config_stored && !b.calibration.imu_stored);
+        assert_eq!(b.calibration.polarization_units_stored, 0b0100);
+        assert_eq!(app.config.nav_rate_hz, 25);
+        assert!(!app.config.stream_raw);
+    }
+
+    #[test]
+    fn records_are_set_read_back_erased_and_bad_ones_refused_with_reasons() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        assert_eq!(boot_of(&decode_all(&out)).calibration.store, StoreStatus::Empty);
+        let mut bad = polarization(1, 1.0);
+        if let Record::Polarization(p) = &mut bad {
+            p.polarizer_rad[2] = f32::NAN;
+        }
+        let mut bytes = cmd(1, Command::SetRecord(polarization(1, 3.0))); // gain out of range
+        bytes.extend(cmd(2, Command::SetRecord(bad)));
+        bytes.extend(cmd(3, Command::ReadRecord(RecordKey::Polarization { unit: 7 })));
+        bytes.extend(cmd(4, Command::SetRecord(polarization(1, 0.95))));
+        bytes.extend(cmd(5, Command::ReadRecord(RecordKey::Polarization { unit: 1 })));
+        let mut out = Vec::new();
+        app.on_downlink_bytes(10, &bytes, &mut out);
+        app.service_store(11, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(
+            acks_of(&msgs),
+            vec![
+                CommandAck { seq: 1, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 2, result: Err(Refusal::NotFinite) },
+                CommandAck { seq: 3, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 4, result: Ok(()) },
+                CommandAck { seq: 5, result: Ok(()) },
+            ]
+        );
+        let key = RecordKey::Polarization { unit: 1 };
+        let report = msgs.iter().find_map(|m| if let Uplink::Record(r) = m { Some(*r) } else { None }).unwrap();
+        assert_eq!(report, RecordReport { t_us: 11, key, stored: Some(polarization(1, 0.95)) });
+        assert_eq!(app.estimator.units_model(1).map(|m| m.channels[0].gain), Some(0.95));
+        // Erase: defaults again, and nothing stored.
+        let mut out = Vec::new();
+        app.on_downlink_bytes(20, &cmd(6, Command::EraseRecord(key)), &mut out);
+        app.on_downlink_bytes(20, &cmd(7, Command::ReadRecord(key)), &mut out);
+        app.service_store(21, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert!(acks_of(&msgs).iter().all(|a| a.result.is_ok()));
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Record(RecordReport { stored: None, .. }))));
+        assert_eq!(app.estimator.units_model(1).map(|m| m.channels[0].gain), Some(head::POLARIZATION_GAIN_COUNTS));
+    }
+
+    #[test]
+    fn set_config_is_stored_and_survives_a_reboot() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        app.on_downlink_bytes(5, &cmd(1, Command::SetConfig(ConfigItem::NavRateHz(5))), &mut out);
+        app.service_store(6, &mut store, &mut out);
+        let mut again = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        again.boot_with_store(0, &mut store, &mut out);
+        assert_eq!(again.config.nav_rate_hz, 5);
+        assert!(boot_of(&decode_all(&out)).calibration.config_stored);
+    }
+
+    #[test]
+    fn damaged_failed_and_absent_stores_give_defaults_and_say_so() {
+        // Damaged beyond repair: erased, defaults, a BadCrc store fault.
+        let mut store = MemStore { corrupted: true, ..Default::default() };
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration.store, StoreStatus::Reformatted);
+        assert_eq!(store.formats, 1);
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Store, kind: FaultKind::BadCrc, .. }))));
+        assert_eq!(app.config, AppConfig::default());
+        // One damaged record: that record's defaults, the others in use.
+        let mut store = MemStore { bad_key: Some(RecordKey::Imu.id()), ..Default::default() };
+        store.save(&polarization(0, 1.1)).unwrap();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration.polarization_units_stored, 1);
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Store, kind: FaultKind::BadCrc, .. }))));
+        // A flash that does not answer: defaults, Failed, commands refused with StoreFailed.
+        let mut failed = crate::store::FailedStore(FaultKind::BusNack);
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut failed, &mut out);
+        app.on_downlink_bytes(1, &cmd(3, Command::ReadRecord(RecordKey::Imu)), &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration.store, StoreStatus::Failed);
+        assert_eq!(acks_of(&msgs), vec![CommandAck { seq: 3, result: Err(Refusal::StoreFailed) }]);
+        // A write that fails: refused, the old value stays in use.
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        store.fail_writes = true;
+        app.on_downlink_bytes(1, &cmd(4, Command::SetRecord(polarization(0, 1.2))), &mut out);
+        app.service_store(2, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(acks_of(&msgs), vec![CommandAck { seq: 4, result: Err(Refusal::StoreFailed) }]);
+        assert_eq!(app.estimator.units_model(0).map(|m| m.channels[0].gain), Some(head::POLARIZATION_GAIN_COUNTS));
+        // No store at all: store commands are not supported.
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        app.on_downlink_bytes(1, &cmd(5, Command::EraseRecord(RecordKey::Imu)), &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration, CalibrationInUse::NO_STORE);
+        assert_eq!(acks_of(&msgs), vec![CommandAck { seq: 5, result: Err(Refusal::NotSupported) }]);
+    }
+
+    #[test]
+    fn a_full_store_queue_refuses_with_busy() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let mut bytes = Vec::new();
+        for seq in 0..(STORE_QUEUE as u16 + 1) {
+            bytes.extend(cmd(seq, Command::ReadRecord(RecordKey::Imu)));
+        }
+        let mut out = Vec::new();
+        app.on_downlink_bytes(1, &bytes, &mut out);
+        assert_eq!(acks_of(&decode_all(&out)), vec![CommandAck { seq: STORE_QUEUE as u16, result: Err(Refusal::Busy) }]);
+    }
+
     #[test]
     fn sylvester() {
         assert!(covariance_is_pd(&[1.0, 0.0, 0.0, 1.0, 0.0, 1.0]));

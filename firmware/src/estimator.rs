@@ -184,6 +184,11 @@ impl Estimator {
         }
     }
 
+    /// The model polarization unit `unit` is solved with.
+    pub fn units_model(&self, unit: usize) -> Option<&UnitModel> {
+        self.units.get(unit).and_then(|u| u.as_ref())
+    }
+
     /// The IMU calibration applied to every sample (`None`: raw samples are body samples).
     pub fn set_imu_correction(&mut self, c: Option<crate::calibration::ImuCorrection>) {
         self.imu_correction = c;
