@@ -4,7 +4,7 @@
 //! restart), and every key must read its old or its new value, never garbage or an error, and
 //! the application must boot on it with a working store.
 //!
-//! CI runs 100 cuts; `SUBNAV_POWER_CUTS=1000 cargo test --release -p subnav-sil --test
+//! CI runs 100 cuts; `SUBNAV_POWER_CUTS=1000 cargo test -p subnav-sil --test
 //! store_power_loss -- --nocapture` is the documented long run (docs/RELIABILITY.md).
 
 use std::collections::HashMap;

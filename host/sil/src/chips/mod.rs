@@ -192,6 +192,12 @@ impl ChipSet {
         self
     }
 
+    /// Remove the SPI chip at `bus` / `cs` (to attach another one there).
+    pub fn detach_spi(&mut self, bus: u8, cs: u8) -> &mut Self {
+        self.spi.retain(|(b, c, _)| (*b, *c) != (bus, cs));
+        self
+    }
+
     /// Attach a serial instrument to UART `port`.
     pub fn attach_uart(&mut self, port: u8, chip: impl UartChip + 'static) -> &mut Self {
         self.uart.push((port, Box::new(chip)));
