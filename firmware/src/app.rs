@@ -105,7 +105,10 @@ pub struct App {
     boot_us: u64,
     /// Whether a working store is attached (store commands are refused without one).
     store: StoreState,
-    /// Store commands waiting for the board's next [`App::service_store`], acknowledged then.
+    /// Store commands waiting for the board's next [`App::service_store`], acknowledged then:
+    /// one record to save (it is the large one: one slot keeps the `App`, which sits in the
+    /// board loop's frame at the stack peak, small) and a few reads and erases.
+    pending_save: Option<(u16, Record)>,
     store_jobs: heapless::Deque<StoreJob, STORE_QUEUE>,
     /// The run configuration changed and is not stored yet.
     config_dirty: bool,
@@ -120,7 +123,6 @@ enum StoreState {
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum StoreOp {
-    Save(Record),
     Read(RecordKey),
     Erase(RecordKey),
 }
@@ -131,7 +133,7 @@ struct StoreJob {
     op: StoreOp,
 }
 
-/// Store commands accepted between two services of the store.
+/// Reads and erases accepted between two services of the store (and one save).
 pub const STORE_QUEUE: usize = 4;
 
 /// Every key the head knows, in the order they are loaded at boot.
@@ -205,6 +207,7 @@ impl App {
             faults: FaultLog::new(),
             boot_us: 0,
             store: StoreState::Absent,
+            pending_save: None,
             store_jobs: heapless::Deque::new(),
             config_dirty: false,
         }
@@ -448,15 +451,18 @@ impl App {
                 self.store_fault(now_us, e.fault_kind(), sink);
             }
         }
+        if let Some((seq, r)) = self.pending_save.take() {
+            let result = match store.save(&r) {
+                Ok(()) => self.use_record(&r),
+                Err(e) => {
+                    self.store_fault(now_us, e.fault_kind(), sink);
+                    Err(Refusal::StoreFailed)
+                }
+            };
+            self.telemetry.send(&Uplink::Ack(CommandAck { seq, result }), sink);
+        }
         while let Some(job) = self.store_jobs.pop_front() {
             let result = match job.op {
-                StoreOp::Save(r) => match store.save(&r) {
-                    Ok(()) => self.use_record(&r),
-                    Err(e) => {
-                        self.store_fault(now_us, e.fault_kind(), sink);
-                        Err(Refusal::StoreFailed)
-                    }
-                },
                 StoreOp::Read(key) => match store.load(key) {
                     Ok(stored) => {
                         self.telemetry.send(&Uplink::Record(RecordReport { t_us: now_us, key, stored }), sink);
@@ -487,19 +493,25 @@ impl App {
         }
     }
 
-    /// Check a store command and queue it for [`App::service_store`].
-    fn queue_store(&mut self, seq: u16, op: StoreOp) -> Result<(), Refusal> {
+    /// Check a store command and queue it for [`App::service_store`] (`Ok(None)`: a save).
+    fn queue_store(&mut self, seq: u16, op: Result<Record, StoreOp>) -> Result<(), Refusal> {
         match self.store {
             StoreState::Absent => return Err(Refusal::NotSupported),
             StoreState::Failed => return Err(Refusal::StoreFailed),
             StoreState::Working => {}
         }
         match op {
-            StoreOp::Save(r) => calibration::check(&r)?,
-            StoreOp::Read(k) | StoreOp::Erase(k) if !key_is_known(k) => return Err(Refusal::OutOfRange),
-            StoreOp::Read(_) | StoreOp::Erase(_) => {}
+            Ok(r) => {
+                calibration::check(&r)?;
+                if self.pending_save.is_some() {
+                    return Err(Refusal::Busy);
+                }
+                self.pending_save = Some((seq, r));
+                Ok(())
+            }
+            Err(StoreOp::Read(k) | StoreOp::Erase(k)) if !key_is_known(k) => Err(Refusal::OutOfRange),
+            Err(op) => self.store_jobs.push_back(StoreJob { seq, op }).map_err(|_| Refusal::Busy),
         }
-        self.store_jobs.push_back(StoreJob { seq, op }).map_err(|_| Refusal::Busy)
     }
 
     fn send_boot(&mut self, now_us: u64, calibration: CalibrationInUse, sink: &mut impl TelemetrySink) {
@@ -563,9 +575,9 @@ impl App {
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn handle_command(&mut self, _now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
         let store_op = match cmd.command {
-            Command::SetRecord(r) => Some(StoreOp::Save(r)),
-            Command::ReadRecord(k) => Some(StoreOp::Read(k)),
-            Command::EraseRecord(k) => Some(StoreOp::Erase(k)),
+            Command::SetRecord(r) => Some(Ok(r)),
+            Command::ReadRecord(k) => Some(Err(StoreOp::Read(k))),
+            Command::EraseRecord(k) => Some(Err(StoreOp::Erase(k))),
             _ => None,
         };
         if let Some(op) = store_op {
@@ -1222,6 +1234,12 @@ mod tests {
         let mut out = Vec::new();
         app.on_downlink_bytes(1, &bytes, &mut out);
         assert_eq!(acks_of(&decode_all(&out)), vec![CommandAck { seq: STORE_QUEUE as u16, result: Err(Refusal::Busy) }]);
+        // One save at a time between two services.
+        let mut bytes = cmd(20, Command::SetRecord(polarization(0, 1.0)));
+        bytes.extend(cmd(21, Command::SetRecord(polarization(1, 1.0))));
+        let mut out = Vec::new();
+        app.on_downlink_bytes(2, &bytes, &mut out);
+        assert_eq!(acks_of(&decode_all(&out)), vec![CommandAck { seq: 21, result: Err(Refusal::Busy) }]);
     }
 
     #[test]

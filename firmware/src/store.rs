@@ -124,9 +124,10 @@ impl RecordStore for FailedStore {
 const ITEM_BUFFER: usize = (1 + MAX_STORED_RECORD + 8).div_ceil(4) * 4;
 
 /// The records in a W25Q's first [`STORE_RANGE`] bytes.
+/// The map's work buffer is a local of each operation, not a field: the store sits in the
+/// board loop's frame, at the stack peak, and the operations run above it.
 pub struct FlashStore<SPI: SpiDevice> {
     map: MapStorage<u8, W25q<SPI>, Cache<Uncached, Uncached, Uncached, u8>>,
-    buf: [u8; ITEM_BUFFER],
 }
 
 fn map_error<E: BusErrorKind>(e: sequential_storage::Error<crate::drivers::Error<E>>) -> StoreError {
@@ -143,7 +144,7 @@ where
     SPI::Error: BusErrorKind,
 {
     pub fn new(flash: W25q<SPI>) -> Self {
-        Self { map: MapStorage::new(flash, const { MapConfig::new(STORE_RANGE) }, Cache::new_uncached()), buf: [0; ITEM_BUFFER] }
+        Self { map: MapStorage::new(flash, const { MapConfig::new(STORE_RANGE) }, Cache::new_uncached()) }
     }
 
     /// Give the flash back.
@@ -158,7 +159,8 @@ where
 {
     fn load(&mut self, key: RecordKey) -> Result<Option<Record>, StoreError> {
         let id = key.id();
-        let got = embassy_futures::block_on(self.map.fetch_item::<&[u8]>(&mut self.buf, &id)).map_err(map_error)?;
+        let mut buf = [0u8; ITEM_BUFFER];
+        let got = embassy_futures::block_on(self.map.fetch_item::<&[u8]>(&mut buf, &id)).map_err(map_error)?;
         let Some(bytes) = got else { return Ok(None) };
         let record = decode_stored(bytes).map_err(StoreError::BadRecord)?;
         if record.key() != key {
@@ -171,11 +173,13 @@ where
         let mut stored = [0u8; MAX_STORED_RECORD];
         let bytes = encode_stored(record, &mut stored).map_err(StoreError::BadRecord)?;
         let id = record.key().id();
-        embassy_futures::block_on(self.map.store_item(&mut self.buf, &id, &bytes)).map_err(map_error)
+        let mut buf = [0u8; ITEM_BUFFER];
+        embassy_futures::block_on(self.map.store_item(&mut buf, &id, &bytes)).map_err(map_error)
     }
 
     fn erase(&mut self, key: RecordKey) -> Result<(), StoreError> {
-        embassy_futures::block_on(self.map.remove_item(&mut self.buf, &key.id())).map_err(map_error)
+        let mut buf = [0u8; ITEM_BUFFER];
+        embassy_futures::block_on(self.map.remove_item(&mut buf, &key.id())).map_err(map_error)
     }
 
     fn format(&mut self) -> Result<(), StoreError> {

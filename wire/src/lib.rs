@@ -25,7 +25,7 @@ pub const PROTOCOL_VERSION: u16 = 4;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0x5c1e_4651_b0ba_99d1;
+pub const SCHEMA_FINGERPRINT: u64 = 0x7690_53a7_07d7_1c01;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);

@@ -12,7 +12,8 @@
 //!   cos 2 th_k + S2 sin 2 th_k))`, `eta_k = (ER_k - 1) / (ER_k + 1)`, `th_k = polarizer_rad[k]`
 //!   from the unit's reference axis (`subnav_core::compass::unit`).
 //! - IMU: `gyro_body = R_body_imu * M_g * (gyro_raw - b_g)` and the same for the accelerometer,
-//!   with `M` (row-major 3x3) the inverse of the scale-and-misalignment matrix.
+//!   with `M` the inverse of the scale-and-misalignment matrix, upper triangular (its rotation
+//!   part is the mounting rotation `R`): `[m00, m01, m02, m11, m12, m22]`.
 //! - DVL: the rotation of the DVL's axes into the body axes, the lever arm and a scale factor.
 
 use postcard::experimental::max_size::MaxSize;
@@ -113,9 +114,11 @@ pub struct PolarizationCalibration {
 pub struct ImuCalibration {
     pub gyro_bias_radps: [f32; 3],
     pub accel_bias_mps2: [f32; 3],
-    /// Row-major 3x3 applied after the bias: the inverse of the gyro's scale and misalignment.
-    pub gyro_correction: [f32; 9],
-    pub accel_correction: [f32; 9],
+    /// Upper triangle `[m00, m01, m02, m11, m12, m22]` of the matrix applied after the bias:
+    /// the inverse of the gyro's scale and non-orthogonality (triangular: any rotation is in
+    /// `body_from_imu_wxyz`).
+    pub gyro_correction: [f32; 6],
+    pub accel_correction: [f32; 6],
     /// Rotation IMU axes -> body FRD, `[w, x, y, z]`.
     pub body_from_imu_wxyz: [f32; 4],
 }
@@ -278,7 +281,7 @@ mod tests {
     use super::*;
 
     fn imu() -> Record {
-        let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let eye = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0];
         Record::Imu(ImuCalibration {
             gyro_bias_radps: [1e-3, -2e-3, 3e-4],
             accel_bias_mps2: [0.05, -0.02, 0.1],

@@ -36,9 +36,9 @@ fn random_record(key: RecordKey, rng: &mut ChaCha8Rng) -> Record {
             extinction_ratio: std::array::from_fn(|_| rng.random_range(100.0..1000.0)),
         }),
         RecordKey::Imu | RecordKey::DvlMounting => {
-            let mut m = [0.0f32; 9];
+            let mut m = [0.0f32; 6];
             for (i, v) in m.iter_mut().enumerate() {
-                *v = if i % 4 == 0 { rng.random_range(0.95..1.05) } else { rng.random_range(-0.01..0.01) };
+                *v = if matches!(i, 0 | 3 | 5) { rng.random_range(0.95..1.05) } else { rng.random_range(-0.01..0.01) };
             }
             Record::Imu(ImuCalibration {
                 gyro_bias_radps: std::array::from_fn(|_| rng.random_range(-0.01..0.01)),
