@@ -21,7 +21,12 @@ use subnav_wire::{
 use subnav_core::ephemeris::Observer;
 use subnav_core::head;
 use subnav_core::nav::NavError;
-use subnav_wire::{CameraTrigger, DvlSample, PolarizationSample, RawSample};
+use subnav_wire::{
+    CalibrationInUse, CameraTrigger, DvlSample, PolarizationSample, RawSample, Record, RecordKey, RecordReport, StoreStatus,
+};
+
+use crate::calibration;
+use crate::store::{RecordStore, StoreError};
 
 use crate::estimator::Estimator;
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
@@ -98,6 +103,51 @@ pub struct App {
     camera_frames: u32,
     faults: FaultLog,
     boot_us: u64,
+    /// Whether a working store is attached (store commands are refused without one).
+    store: StoreState,
+    /// Store commands waiting for the board's next [`App::service_store`], acknowledged then:
+    /// one record to save (it is the large one: one slot keeps the `App`, which sits in the
+    /// board loop's frame at the stack peak, small) and a few reads and erases.
+    pending_save: Option<(u16, Record)>,
+    store_jobs: heapless::Deque<StoreJob, STORE_QUEUE>,
+    /// The run configuration changed and is not stored yet.
+    config_dirty: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StoreState {
+    Absent,
+    Working,
+    Failed,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum StoreOp {
+    Read(RecordKey),
+    Erase(RecordKey),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StoreJob {
+    seq: u16,
+    op: StoreOp,
+}
+
+/// Reads and erases accepted between two services of the store (and one save).
+pub const STORE_QUEUE: usize = 4;
+
+/// Every key the head knows, in the order they are loaded at boot.
+pub fn record_keys() -> impl Iterator<Item = RecordKey> {
+    [RecordKey::RunConfig, RecordKey::Imu, RecordKey::DvlMounting]
+        .into_iter()
+        .chain((0..head::POLARIZATION_UNITS as u8).map(|unit| RecordKey::Polarization { unit }))
+}
+
+fn key_is_known(key: RecordKey) -> bool {
+    match key {
+        RecordKey::Polarization { unit } => usize::from(unit) < head::POLARIZATION_UNITS,
+        _ => true,
+    }
 }
 
 /// After boot, "no data yet" from a sensor is not reported as a fault for this long (µs).
@@ -156,6 +206,10 @@ impl App {
             camera_frames: 0,
             faults: FaultLog::new(),
             boot_us: 0,
+            store: StoreState::Absent,
+            pending_save: None,
+            store_jobs: heapless::Deque::new(),
+            config_dirty: false,
         }
     }
 
@@ -281,10 +335,188 @@ impl App {
         }
     }
 
-    /// Send the boot message. Call once after reset, before anything else.
+    /// Send the boot message of a head without a store. Call once after reset, before anything else.
     pub fn boot(&mut self, now_us: u64, sink: &mut impl TelemetrySink) {
+        self.send_boot(now_us, CalibrationInUse::NO_STORE, sink);
+    }
+
+    /// Load the configuration and calibrations from `store`, then send the boot message saying
+    /// which are in use, and a `Store` fault for anything that could not be used. A store that
+    /// is damaged beyond repair is erased (defaults in use, reported as `Reformatted`); one that
+    /// does not answer leaves the defaults in use and refuses store commands. Call once after
+    /// reset, before anything else.
+    pub fn boot_with_store(&mut self, now_us: u64, store: &mut dyn RecordStore, sink: &mut impl TelemetrySink) {
+        let mut cal = CalibrationInUse::NO_STORE;
+        let mut faults: heapless::Vec<FaultKind, 8> = heapless::Vec::new();
+        self.store = StoreState::Absent;
+        if store.present() {
+            self.store = StoreState::Working;
+            cal.store = StoreStatus::Empty;
+            for key in record_keys() {
+                match store.load(key) {
+                    Ok(Some(r)) => match self.use_record(&r) {
+                        Ok(()) => mark_in_use(&mut cal, key, true),
+                        Err(_) => {
+                            let _ = faults.push(FaultKind::Malformed);
+                        }
+                    },
+                    Ok(None) => {}
+                    Err(StoreError::BadRecord(_)) => {
+                        let _ = faults.push(FaultKind::BadCrc);
+                    }
+                    Err(StoreError::Corrupted) => {
+                        let _ = faults.push(FaultKind::BadCrc);
+                        self.use_defaults();
+                        cal = CalibrationInUse { store: StoreStatus::Reformatted, ..CalibrationInUse::NO_STORE };
+                        if let Err(e) = store.format() {
+                            let _ = faults.push(e.fault_kind());
+                            cal.store = StoreStatus::Failed;
+                            self.store = StoreState::Failed;
+                        }
+                        break;
+                    }
+                    Err(e) => {
+                        let _ = faults.push(e.fault_kind());
+                        self.use_defaults();
+                        cal = CalibrationInUse { store: StoreStatus::Failed, ..CalibrationInUse::NO_STORE };
+                        self.store = StoreState::Failed;
+                        break;
+                    }
+                }
+            }
+            let any = cal.config_stored || cal.imu_stored || cal.dvl_stored || cal.polarization_units_stored != 0;
+            if cal.store == StoreStatus::Empty && any {
+                cal.store = StoreStatus::Ok;
+            }
+        }
+        self.send_boot(now_us, cal, sink);
+        for kind in faults {
+            self.store_fault(now_us, kind, sink);
+        }
+    }
+
+    fn store_fault(&mut self, now_us: u64, kind: FaultKind, sink: &mut impl TelemetrySink) {
+        let f = SensorFault { source: FaultSource::Store, kind };
+        if let Some(count) = self.faults.record(now_us, f) {
+            warn!("store fault at {=u64} us ({=u32} so far)", now_us, count);
+            self.telemetry.send(&Uplink::Fault(Fault { t_us: now_us, source: f.source, kind, count }), sink);
+        }
+    }
+
+    /// Put a (checked) record in use.
+    fn use_record(&mut self, r: &Record) -> Result<(), Refusal> {
+        match r {
+            Record::RunConfig(c) => {
+                let c = calibration::run_config(c)?;
+                self.config = c;
+                self.nav_task.period_us = 1_000_000 / u64::from(c.nav_rate_hz.max(1));
+            }
+            Record::Polarization(p) => {
+                let m = calibration::unit_model(p)?;
+                self.estimator.set_polarization_unit(usize::from(p.unit), Some(m));
+            }
+            Record::Imu(c) => self.estimator.set_imu_correction(Some(calibration::ImuCorrection::new(c)?)),
+            Record::DvlMounting(d) => self.estimator.set_dvl_mounting(Some(calibration::dvl_mounting(d)?)),
+        }
+        Ok(())
+    }
+
+    /// Put the defaults of `key` in use.
+    fn use_default(&mut self, key: RecordKey) {
+        match key {
+            RecordKey::RunConfig => {
+                self.config = AppConfig::default();
+                self.nav_task.period_us = 1_000_000 / u64::from(self.config.nav_rate_hz);
+            }
+            RecordKey::Polarization { unit } => self.estimator.set_polarization_unit(usize::from(unit), None),
+            RecordKey::Imu => self.estimator.set_imu_correction(None),
+            RecordKey::DvlMounting => self.estimator.set_dvl_mounting(None),
+        }
+    }
+
+    fn use_defaults(&mut self) {
+        for key in record_keys() {
+            self.use_default(key);
+        }
+    }
+
+    /// Run the store commands received since the last call (and store a changed configuration),
+    /// acknowledging each. Boards call this from their main loop: flash writes and erases take
+    /// milliseconds, so they never run inside a command's decoding.
+    #[inline(never)] // keeps its temporaries out of the board loop's stack frame
+    pub fn service_store(&mut self, now_us: u64, store: &mut dyn RecordStore, sink: &mut impl TelemetrySink) {
+        if self.config_dirty && self.store == StoreState::Working {
+            self.config_dirty = false;
+            if let Err(e) = store.save(&Record::RunConfig(calibration::run_config_record(&self.config))) {
+                self.store_fault(now_us, e.fault_kind(), sink);
+            }
+        }
+        if let Some((seq, r)) = self.pending_save.take() {
+            let result = match store.save(&r) {
+                Ok(()) => self.use_record(&r),
+                Err(e) => {
+                    self.store_fault(now_us, e.fault_kind(), sink);
+                    Err(Refusal::StoreFailed)
+                }
+            };
+            self.telemetry.send(&Uplink::Ack(CommandAck { seq, result }), sink);
+        }
+        while let Some(job) = self.store_jobs.pop_front() {
+            let result = match job.op {
+                StoreOp::Read(key) => match store.load(key) {
+                    Ok(stored) => {
+                        self.telemetry.send(&Uplink::Record(RecordReport { t_us: now_us, key, stored }), sink);
+                        Ok(())
+                    }
+                    Err(StoreError::BadRecord(_)) => {
+                        self.store_fault(now_us, FaultKind::BadCrc, sink);
+                        self.telemetry.send(&Uplink::Record(RecordReport { t_us: now_us, key, stored: None }), sink);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        self.store_fault(now_us, e.fault_kind(), sink);
+                        Err(Refusal::StoreFailed)
+                    }
+                },
+                StoreOp::Erase(key) => match store.erase(key) {
+                    Ok(()) => {
+                        self.use_default(key);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        self.store_fault(now_us, e.fault_kind(), sink);
+                        Err(Refusal::StoreFailed)
+                    }
+                },
+            };
+            self.telemetry.send(&Uplink::Ack(CommandAck { seq: job.seq, result }), sink);
+        }
+    }
+
+    /// Check a store command and queue it for [`App::service_store`] (`Ok(None)`: a save).
+    fn queue_store(&mut self, seq: u16, op: Result<Record, StoreOp>) -> Result<(), Refusal> {
+        match self.store {
+            StoreState::Absent => return Err(Refusal::NotSupported),
+            StoreState::Failed => return Err(Refusal::StoreFailed),
+            StoreState::Working => {}
+        }
+        match op {
+            Ok(r) => {
+                calibration::check(&r)?;
+                if self.pending_save.is_some() {
+                    return Err(Refusal::Busy);
+                }
+                self.pending_save = Some((seq, r));
+                Ok(())
+            }
+            Err(StoreOp::Read(k) | StoreOp::Erase(k)) if !key_is_known(k) => Err(Refusal::OutOfRange),
+            Err(op) => self.store_jobs.push_back(StoreJob { seq, op }).map_err(|_| Refusal::Busy),
+        }
+    }
+
+    fn send_boot(&mut self, now_us: u64, calibration: CalibrationInUse, sink: &mut impl TelemetrySink) {
         self.boot_us = now_us;
-        let boot = boot_message(self.board, FIRMWARE_VERSION, now_us);
+        let boot = boot_message(self.board, FIRMWARE_VERSION, now_us, calibration);
         info!(
             "subnav firmware {=u8}.{=u8}.{=u8} booting, protocol {=u16}",
             FIRMWARE_VERSION[0], FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], boot.protocol_version
@@ -342,6 +574,20 @@ impl App {
     /// own times (a fix its time of validity), so the arrival tick `_now_us` changes nothing.
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn handle_command(&mut self, _now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
+        let store_op = match cmd.command {
+            Command::SetRecord(r) => Some(Ok(r)),
+            Command::ReadRecord(k) => Some(Err(StoreOp::Read(k))),
+            Command::EraseRecord(k) => Some(Err(StoreOp::Erase(k))),
+            _ => None,
+        };
+        if let Some(op) = store_op {
+            // Acknowledged by `service_store` once done, or now if refused.
+            if let Err(e) = self.queue_store(cmd.seq, op) {
+                warn!("command {=u16} refused", cmd.seq);
+                self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result: Err(e) }), sink);
+            }
+            return;
+        }
         let result = self.apply(cmd.command);
         match result {
             Ok(()) => info!("command {=u16} accepted", cmd.seq),
@@ -368,7 +614,14 @@ impl App {
             other => other,
         };
         match command {
-            Command::SetConfig(item) => self.apply_config(item),
+            Command::SetConfig(item) => {
+                let before = self.config;
+                self.apply_config(item)?;
+                if self.config != before && self.store == StoreState::Working {
+                    self.config_dirty = true;
+                }
+                Ok(())
+            }
             Command::SetTime { t_us, utc_unix_us } => {
                 let t = i64::try_from(t_us).map_err(|_| Refusal::OutOfRange)?;
                 // 2000-01-01 .. 2200-01-01: anything else is a host bug.
@@ -383,6 +636,8 @@ impl App {
                 self.request = BoardRequest::Reboot;
                 Ok(())
             }
+            // Queued by `handle_command`, never applied here.
+            Command::SetRecord(_) | Command::ReadRecord(_) | Command::EraseRecord(_) => Err(Refusal::NotSupported),
         }
     }
 
@@ -419,6 +674,22 @@ impl App {
             }
         }
         Ok(())
+    }
+}
+
+fn mark_in_use(cal: &mut CalibrationInUse, key: RecordKey, stored: bool) {
+    match key {
+        RecordKey::RunConfig => cal.config_stored = stored,
+        RecordKey::Imu => cal.imu_stored = stored,
+        RecordKey::DvlMounting => cal.dvl_stored = stored,
+        RecordKey::Polarization { unit } if unit < 8 => {
+            if stored {
+                cal.polarization_units_stored |= 1 << unit;
+            } else {
+                cal.polarization_units_stored &= !(1 << unit);
+            }
+        }
+        RecordKey::Polarization { .. } => {}
     }
 }
 
@@ -760,6 +1031,215 @@ mod tests {
         assert_eq!(occluded_units(&[(0, dark), (1, dark), (2, dark), (3, dark)]), 0);
         // Dimmer by a factor of 3 (another direction) is not occluded.
         assert_eq!(occluded_units(&[(0, lit), (1, [900, 950, 880, 1000]), (3, lit)]), 0);
+    }
+
+    /// A store in RAM, with the failures a flash has.
+    #[derive(Default)]
+    struct MemStore {
+        records: std::collections::BTreeMap<u8, Record>,
+        corrupted: bool,
+        bad_key: Option<u8>,
+        fail_writes: bool,
+        formats: u32,
+    }
+
+    impl RecordStore for MemStore {
+        fn load(&mut self, key: RecordKey) -> Result<Option<Record>, StoreError> {
+            if self.corrupted {
+                return Err(StoreError::Corrupted);
+            }
+            if self.bad_key == Some(key.id()) {
+                return Err(StoreError::BadRecord(subnav_wire::StoredError::Crc));
+            }
+            Ok(self.records.get(&key.id()).copied())
+        }
+        fn save(&mut self, r: &Record) -> Result<(), StoreError> {
+            if self.fail_writes {
+                return Err(StoreError::Bus(FaultKind::BusTimeout));
+            }
+            self.records.insert(r.key().id(), *r);
+            Ok(())
+        }
+        fn erase(&mut self, key: RecordKey) -> Result<(), StoreError> {
+            self.records.remove(&key.id());
+            Ok(())
+        }
+        fn format(&mut self) -> Result<(), StoreError> {
+            self.records.clear();
+            self.corrupted = false;
+            self.formats += 1;
+            Ok(())
+        }
+    }
+
+    fn boot_of(msgs: &[Uplink]) -> wire::Boot {
+        match msgs.first() {
+            Some(Uplink::Boot(b)) => *b,
+            other => panic!("first message is not Boot: {other:?}"),
+        }
+    }
+
+    fn acks_of(msgs: &[Uplink]) -> Vec<CommandAck> {
+        msgs.iter().filter_map(|m| if let Uplink::Ack(a) = m { Some(*a) } else { None }).collect()
+    }
+
+    fn polarization(unit: u8, gain: f32) -> Record {
+        Record::Polarization(wire::PolarizationCalibration {
+            unit,
+            gain: [gain; 4],
+            offset_counts: [head::POLARIZATION_OFFSET_COUNTS; 4],
+            polarizer_rad: core::array::from_fn(|k| (k as f32 * 45.0).to_radians()),
+            extinction_ratio: [head::POLARIZER_EXTINCTION_RATIO; 4],
+        })
+    }
+
+    #[test]
+    fn boot_uses_and_reports_the_stored_records() {
+        let mut store = MemStore::default();
+        let cfg = wire::RunConfigRecord { nav_rate_hz: 25, stream_raw: false, water_density_kgm3: 1010.0, origin: None };
+        store.save(&Record::RunConfig(cfg)).unwrap();
+        store.save(&polarization(2, 1.05)).unwrap();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let b = boot_of(&decode_all(&out));
+        assert_eq!(b.calibration.store, StoreStatus::Ok);
+        assert!(b.calibration.config_stored && !b.calibration.imu_stored);
+        assert_eq!(b.calibration.polarization_units_stored, 0b0100);
+        assert_eq!(app.config.nav_rate_hz, 25);
+        assert!(!app.config.stream_raw);
+    }
+
+    #[test]
+    fn records_are_set_read_back_erased_and_bad_ones_refused_with_reasons() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        assert_eq!(boot_of(&decode_all(&out)).calibration.store, StoreStatus::Empty);
+        let mut bad = polarization(1, 1.0);
+        if let Record::Polarization(p) = &mut bad {
+            p.polarizer_rad[2] = f32::NAN;
+        }
+        let mut bytes = cmd(1, Command::SetRecord(polarization(1, 3.0))); // gain out of range
+        bytes.extend(cmd(2, Command::SetRecord(bad)));
+        bytes.extend(cmd(3, Command::ReadRecord(RecordKey::Polarization { unit: 7 })));
+        bytes.extend(cmd(4, Command::SetRecord(polarization(1, 0.95))));
+        bytes.extend(cmd(5, Command::ReadRecord(RecordKey::Polarization { unit: 1 })));
+        let mut out = Vec::new();
+        app.on_downlink_bytes(10, &bytes, &mut out);
+        app.service_store(11, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(
+            acks_of(&msgs),
+            vec![
+                CommandAck { seq: 1, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 2, result: Err(Refusal::NotFinite) },
+                CommandAck { seq: 3, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 4, result: Ok(()) },
+                CommandAck { seq: 5, result: Ok(()) },
+            ]
+        );
+        let key = RecordKey::Polarization { unit: 1 };
+        let report = msgs.iter().find_map(|m| if let Uplink::Record(r) = m { Some(*r) } else { None }).unwrap();
+        assert_eq!(report, RecordReport { t_us: 11, key, stored: Some(polarization(1, 0.95)) });
+        assert_eq!(app.estimator.units_model(1).map(|m| m.channels[0].gain), Some(0.95));
+        // Erase: defaults again, and nothing stored.
+        let mut out = Vec::new();
+        app.on_downlink_bytes(20, &cmd(6, Command::EraseRecord(key)), &mut out);
+        app.on_downlink_bytes(20, &cmd(7, Command::ReadRecord(key)), &mut out);
+        app.service_store(21, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert!(acks_of(&msgs).iter().all(|a| a.result.is_ok()));
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Record(RecordReport { stored: None, .. }))));
+        assert_eq!(app.estimator.units_model(1).map(|m| m.channels[0].gain), Some(head::POLARIZATION_GAIN_COUNTS));
+    }
+
+    #[test]
+    fn set_config_is_stored_and_survives_a_reboot() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        app.on_downlink_bytes(5, &cmd(1, Command::SetConfig(ConfigItem::NavRateHz(5))), &mut out);
+        app.service_store(6, &mut store, &mut out);
+        let mut again = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        again.boot_with_store(0, &mut store, &mut out);
+        assert_eq!(again.config.nav_rate_hz, 5);
+        assert!(boot_of(&decode_all(&out)).calibration.config_stored);
+    }
+
+    #[test]
+    fn damaged_failed_and_absent_stores_give_defaults_and_say_so() {
+        // Damaged beyond repair: erased, defaults, a BadCrc store fault.
+        let mut store = MemStore { corrupted: true, ..Default::default() };
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration.store, StoreStatus::Reformatted);
+        assert_eq!(store.formats, 1);
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Store, kind: FaultKind::BadCrc, .. }))));
+        assert_eq!(app.config, AppConfig::default());
+        // One damaged record: that record's defaults, the others in use.
+        let mut store = MemStore { bad_key: Some(RecordKey::Imu.id()), ..Default::default() };
+        store.save(&polarization(0, 1.1)).unwrap();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration.polarization_units_stored, 1);
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(Fault { source: FaultSource::Store, kind: FaultKind::BadCrc, .. }))));
+        // A flash that does not answer: defaults, Failed, commands refused with StoreFailed.
+        let mut failed = crate::store::FailedStore(FaultKind::BusNack);
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut failed, &mut out);
+        app.on_downlink_bytes(1, &cmd(3, Command::ReadRecord(RecordKey::Imu)), &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration.store, StoreStatus::Failed);
+        assert_eq!(acks_of(&msgs), vec![CommandAck { seq: 3, result: Err(Refusal::StoreFailed) }]);
+        // A write that fails: refused, the old value stays in use.
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        store.fail_writes = true;
+        app.on_downlink_bytes(1, &cmd(4, Command::SetRecord(polarization(0, 1.2))), &mut out);
+        app.service_store(2, &mut store, &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(acks_of(&msgs), vec![CommandAck { seq: 4, result: Err(Refusal::StoreFailed) }]);
+        assert_eq!(app.estimator.units_model(0).map(|m| m.channels[0].gain), Some(head::POLARIZATION_GAIN_COUNTS));
+        // No store at all: store commands are not supported.
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        app.on_downlink_bytes(1, &cmd(5, Command::EraseRecord(RecordKey::Imu)), &mut out);
+        let msgs = decode_all(&out);
+        assert_eq!(boot_of(&msgs).calibration, CalibrationInUse::NO_STORE);
+        assert_eq!(acks_of(&msgs), vec![CommandAck { seq: 5, result: Err(Refusal::NotSupported) }]);
+    }
+
+    #[test]
+    fn a_full_store_queue_refuses_with_busy() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let mut bytes = Vec::new();
+        for seq in 0..(STORE_QUEUE as u16 + 1) {
+            bytes.extend(cmd(seq, Command::ReadRecord(RecordKey::Imu)));
+        }
+        let mut out = Vec::new();
+        app.on_downlink_bytes(1, &bytes, &mut out);
+        assert_eq!(acks_of(&decode_all(&out)), vec![CommandAck { seq: STORE_QUEUE as u16, result: Err(Refusal::Busy) }]);
+        // One save at a time between two services.
+        let mut bytes = cmd(20, Command::SetRecord(polarization(0, 1.0)));
+        bytes.extend(cmd(21, Command::SetRecord(polarization(1, 1.0))));
+        let mut out = Vec::new();
+        app.on_downlink_bytes(2, &bytes, &mut out);
+        assert_eq!(acks_of(&decode_all(&out)), vec![CommandAck { seq: 21, result: Err(Refusal::Busy) }]);
     }
 
     #[test]

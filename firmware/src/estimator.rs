@@ -137,6 +137,11 @@ pub struct Estimator {
     last_gyro_radps: [f32; 3],
     /// DVL velocities fused (accepted by the gate) since boot.
     pub dvl_fused: u32,
+    /// The IMU's calibration (stored record), applied to every sample first.
+    imu_correction: Option<crate::calibration::ImuCorrection>,
+    /// Where the DVL sits and its scale factor (stored record, else the head's nominal).
+    dvl_mounting: subnav_core::nav::dvl::DvlMounting,
+    dvl_scale: f32,
 }
 
 impl Default for Estimator {
@@ -165,7 +170,35 @@ impl Estimator {
             input_rejects: 0,
             last_gyro_radps: [0.0; 3],
             dvl_fused: 0,
+            imu_correction: None,
+            dvl_mounting: head::dvl_mounting(),
+            dvl_scale: 1.0,
         }
+    }
+
+    /// Use `model` for polarization unit `unit` (a stored calibration; `None`: the nominal model).
+    pub fn set_polarization_unit(&mut self, unit: usize, model: Option<UnitModel>) {
+        let nominal = head::polarization_units();
+        if let (Some(slot), Some(n)) = (self.units.get_mut(unit), nominal.get(unit)) {
+            *slot = model.or(*n);
+        }
+    }
+
+    /// The model polarization unit `unit` is solved with.
+    pub fn units_model(&self, unit: usize) -> Option<&UnitModel> {
+        self.units.get(unit).and_then(|u| u.as_ref())
+    }
+
+    /// The IMU calibration applied to every sample (`None`: raw samples are body samples).
+    pub fn set_imu_correction(&mut self, c: Option<crate::calibration::ImuCorrection>) {
+        self.imu_correction = c;
+    }
+
+    /// The DVL's mounting and scale factor (`None`: the head's nominal mounting, scale 1).
+    pub fn set_dvl_mounting(&mut self, m: Option<(subnav_core::nav::dvl::DvlMounting, f32)>) {
+        let (m, scale) = m.unwrap_or((head::dvl_mounting(), 1.0));
+        self.dvl_mounting = m;
+        self.dvl_scale = scale;
     }
 
     /// Back to alignment (downlink `ResetFilter`), keeping the filter's storage. Every field
@@ -194,6 +227,8 @@ impl Estimator {
     }
 
     pub fn on_imu(&mut self, s: &ImuSample) -> Result<(), NavError> {
+        let corrected = self.imu_correction.map(|c| c.apply(s));
+        let s = corrected.as_ref().unwrap_or(s);
         let finite = s.gyro_radps.iter().chain(s.accel_mps2.iter()).all(|v| v.is_finite());
         if finite {
             let a = 0.05;
@@ -389,12 +424,12 @@ impl Estimator {
         let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return Ok(()) };
         let m = DvlMeasurement {
             t_us: s.t_us,
-            vel_dvl_mps: s.vel_dvl_mps,
+            vel_dvl_mps: s.vel_dvl_mps.map(|v| v / self.dvl_scale),
             covariance_m2ps2: None,
             fom_mps: Some(head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps)),
             gyro_radps: self.last_gyro_radps,
         };
-        let rep = nav.update_dvl(&m, &head::dvl_mounting())?;
+        let rep = nav.update_dvl(&m, &self.dvl_mounting)?;
         if rep.accepted {
             self.dvl_fused = self.dvl_fused.saturating_add(1);
         }

@@ -8,12 +8,14 @@
 
 pub mod app;
 pub mod bus_bridge;
+pub mod calibration;
 pub mod drivers;
 pub mod estimator;
 pub mod hal_bus;
 pub mod head_suite;
 pub mod log;
 pub mod sensors;
+pub mod store;
 pub mod telemetry;
 pub mod time;
 

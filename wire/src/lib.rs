@@ -12,18 +12,20 @@ pub mod bridge;
 pub mod error_check;
 pub mod frame;
 pub mod messages;
+pub mod records;
 
 pub use frame::{Decoded, FrameDecoder, FrameError, decode_in_place, encode, max_frame_len};
 pub use messages::*;
+pub use records::*;
 
 use postcard::experimental::max_size::MaxSize;
 
 /// Bumped on every incompatible change of the messages or framing.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0x2809_183b_a216_fc09;
+pub const SCHEMA_FINGERPRINT: u64 = 0x7690_53a7_07d7_1c01;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
@@ -31,8 +33,8 @@ pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
 pub const MAX_DOWNLINK_FRAME: usize = max_frame_len(Downlink::POSTCARD_MAX_SIZE);
 
 /// The boot message this build of the protocol sends.
-pub const fn boot_message(board: Board, firmware_version: [u8; 3], t_us: u64) -> Boot {
-    Boot { protocol_version: PROTOCOL_VERSION, schema_fingerprint: SCHEMA_FINGERPRINT, firmware_version, board, t_us }
+pub const fn boot_message(board: Board, firmware_version: [u8; 3], t_us: u64, calibration: CalibrationInUse) -> Boot {
+    Boot { protocol_version: PROTOCOL_VERSION, schema_fingerprint: SCHEMA_FINGERPRINT, firmware_version, board, t_us, calibration }
 }
 
 /// Whether a peer's boot message speaks our protocol.

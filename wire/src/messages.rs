@@ -15,6 +15,8 @@
 use postcard::experimental::max_size::MaxSize;
 use serde::{Deserialize, Serialize};
 
+use crate::records::{CalibrationInUse, Record, RecordKey, RecordReport};
+
 /// Which board produced the telemetry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
 #[cfg_attr(test, derive(postcard_schema::Schema))]
@@ -39,6 +41,8 @@ pub struct Boot {
     pub board: Board,
     /// Sensor-head clock at which this message was sent.
     pub t_us: u64,
+    /// Which configuration and calibrations the head booted with, and the state of its store.
+    pub calibration: CalibrationInUse,
 }
 
 /// What the estimator is currently doing.
@@ -213,6 +217,8 @@ pub enum FaultSource {
     Link,
     Filter,
     Scheduler,
+    /// The persistent store (configuration and calibration flash).
+    Store,
 }
 
 /// What went wrong.
@@ -270,6 +276,7 @@ impl core::fmt::Display for FaultSource {
             FaultSource::Link => f.write_str("host link"),
             FaultSource::Filter => f.write_str("navigation filter"),
             FaultSource::Scheduler => f.write_str("scheduler"),
+            FaultSource::Store => f.write_str("persistent store"),
         }
     }
 }
@@ -319,6 +326,8 @@ pub enum Refusal {
     TooOld,
     /// The command's time of validity is in the future beyond the accepted bound.
     FromFuture,
+    /// The persistent store could not write or read the record (nothing changed).
+    StoreFailed,
 }
 
 impl core::fmt::Display for Refusal {
@@ -331,6 +340,7 @@ impl core::fmt::Display for Refusal {
             Refusal::Busy => "sensor head busy (queue full, or the filter is not running yet): command not applied, retry",
             Refusal::TooOld => "the command's time is older than the filter's history: not applied",
             Refusal::FromFuture => "the command's time is further in the future than the head accepts: not applied",
+            Refusal::StoreFailed => "the persistent store could not save or read the record: nothing changed",
         })
     }
 }
@@ -369,6 +379,8 @@ pub enum Uplink {
     Fault(Fault),
     Ack(CommandAck),
     Trigger(CameraTrigger),
+    /// A stored record, answering `ReadRecord` (and one per key after `Boot`).
+    Record(RecordReport),
 }
 
 impl Uplink {
@@ -385,6 +397,7 @@ impl Uplink {
             Uplink::Health(m) => m.t_us,
             Uplink::Fault(m) => m.t_us,
             Uplink::Trigger(m) => m.t_us,
+            Uplink::Record(m) => m.t_us,
             Uplink::Ack(_) => return None,
         })
     }
@@ -403,6 +416,7 @@ impl Uplink {
             Uplink::Fault(_) => "fault",
             Uplink::Ack(_) => "ack",
             Uplink::Trigger(_) => "camera.trigger",
+            Uplink::Record(_) => "record",
         }
     }
 }
@@ -447,6 +461,13 @@ pub enum Command {
     ResetFilter,
     /// Reboot the sensor head.
     Reboot,
+    /// Store a configuration or calibration record (range-checked; in use at once, and after
+    /// every reboot).
+    SetRecord(Record),
+    /// Report the stored record (`Uplink::Record`).
+    ReadRecord(RecordKey),
+    /// Erase the stored record: its defaults are in use at once and after a reboot.
+    EraseRecord(RecordKey),
 }
 
 /// Host -> firmware, with a sequence number echoed in the [`CommandAck`].

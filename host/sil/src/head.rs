@@ -562,6 +562,13 @@ impl SimHead {
         Self::with_downlink_tap(sc, None)
     }
 
+    /// The same head with `flash` as its store's chip (e.g. `W25qModel::with_file`, so the
+    /// head keeps its configuration and calibration across runs).
+    pub fn with_flash(mut self, flash: crate::chips::w25q::W25qModel) -> Self {
+        self.chips.detach_spi(0, 1).attach_spi(0, 1, flash);
+        self
+    }
+
     /// As [`SimHead::new`], with `tap` called for every downlink frame the modem delivers.
     pub fn with_downlink_tap(sc: &Scenario, tap: Option<DeliveryTap>) -> Self {
         Self::build(sc, tap, None)
@@ -579,6 +586,8 @@ impl SimHead {
             imu.faults.nack_window_us = Some(((a * 1e6) as u64, (b * 1e6) as u64));
         }
         chips.attach_spi(0, 0, imu);
+        // The store's flash: erased, in memory (`SimHead::with_flash` gives it a file).
+        chips.attach_spi(0, 1, crate::chips::w25q::W25qModel::new());
 
         // Polarization units: the field at the vehicle's depth and attitude, the units' true
         // calibration (nominal + residuals), shot/read noise; counts -> volts for the ADS1115.

@@ -16,6 +16,8 @@ use embedded_io::Read as _;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
 use subnav_firmware::app::SERIAL_POLL_US;
+use subnav_firmware::drivers::w25q::W25q;
+use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
@@ -154,11 +156,6 @@ pub fn run_native_observed(
     };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
-    app.boot(0, &mut sink);
-    // The configured start, as the QEMU board applies it from the same start arguments.
-    for command in boot_commands(&sc.board_args()) {
-        app.handle_command(0, Downlink { seq: 0, command }, &mut sink);
-    }
 
     // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
     let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
@@ -170,6 +167,17 @@ pub fn run_native_observed(
     let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;
+    // The store on SPI 0 / CS 1, loaded before the boot message, as on the QEMU board.
+    let mut store = W25q::new(BridgeSpi::new(&bridge, 0, 1)).map(FlashStore::new).map_err(|e| FailedStore(e.fault_kind()));
+    let store: &mut dyn RecordStore = match &mut store {
+        Ok(s) => s,
+        Err(f) => f,
+    };
+    app.boot_with_store(0, store, &mut sink);
+    // The configured start, as the QEMU board applies it from the same start arguments.
+    for command in boot_commands(&sc.board_args()) {
+        app.handle_command(0, Downlink { seq: 0, command }, &mut sink);
+    }
     let mut delay = BridgeDelay::new(&bridge);
     let mut suite = HeadSuite::new(
         BridgeSpi::new(&bridge, 0, 0),
@@ -197,6 +205,7 @@ pub fn run_native_observed(
             }
         }
         app.sensor_tick(t_us, &mut suite, &mut sink);
+        app.service_store(t_us, store, &mut sink);
         let _ = app.poll(t_us, &mut sink);
     }
     let transactions = bridge.into_inner().link_mut().transactions;

@@ -43,7 +43,9 @@ impl ByteLink for PipeLink {
 
 use subnav_firmware::app::SERIAL_POLL_US;
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
+use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::store::{FailedStore, FlashStore, NoStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
 use subnav_wire::{Board, Command, ConfigItem, Downlink};
@@ -180,7 +182,22 @@ fn main() -> ! {
         _ => None,
     };
     defmt::info!("board qemu-mps2-an386, run_ms={=?}, sensor bridge={=bool}", opts.run_ms, pipe.is_some());
-    app.boot(0, &mut uart);
+    let has_bridge = pipe.is_some();
+    let bridge = RefCell::new(BridgeClient::new(PipeLink(pipe)));
+    // Reads block until the host answers; `None` means the pipe broke: fail fast (BusTimeout).
+    bridge.borrow_mut().max_polls = 4;
+
+    // The store: the W25Q on SPI 0 / CS 1 (through the bridge); none without a bridge.
+    let (mut flash_store, mut failed_store, mut no_store) = (None, None, NoStore);
+    let store: &mut dyn RecordStore = if has_bridge {
+        match W25q::new(BridgeSpi::new(&bridge, 0, 1)) {
+            Ok(flash) => flash_store.insert(FlashStore::new(flash)),
+            Err(e) => failed_store.insert(FailedStore(e.fault_kind())),
+        }
+    } else {
+        &mut no_store
+    };
+    app.boot_with_store(0, store, &mut uart);
     if let Some(utc) = opts.utc_unix_us.and_then(|u| i64::try_from(u).ok()) {
         app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: utc } }, &mut uart);
     }
@@ -190,10 +207,6 @@ fn main() -> ! {
         app.handle_command(0, Downlink { seq: 0, command: Command::SetConfig(origin) }, &mut uart);
     }
 
-    let has_bridge = pipe.is_some();
-    let bridge = RefCell::new(BridgeClient::new(PipeLink(pipe)));
-    // Reads block until the host answers; `None` means the pipe broke: fail fast (BusTimeout).
-    bridge.borrow_mut().max_polls = 4;
     let mut suite = has_bridge.then(|| {
         let mut delay = BridgeDelay::new(&bridge);
         let suite = HeadSuite::new(
@@ -243,6 +256,7 @@ fn main() -> ! {
             if let Some(s) = suite.as_mut() {
                 app.sensor_tick(t_us, s, &mut uart);
             }
+            app.service_store(t_us, store, &mut uart);
             if app.poll(t_us, &mut uart) == BoardRequest::Reboot {
                 defmt::info!("reboot requested");
                 cortex_m::peripheral::SCB::sys_reset();

@@ -19,14 +19,19 @@ fn v3(v: &[f32; 3]) -> String {
 pub fn text(m: &Uplink) -> String {
     match m {
         Uplink::Boot(b) => format!(
-            "boot    t={} board={:?} firmware={}.{}.{} protocol={} schema={:#018x}",
+            "boot    t={} board={:?} firmware={}.{}.{} protocol={} schema={:#018x} store={:?} stored: config={} imu={} dvl={} polarization_units={:#06b}",
             secs(b.t_us),
             b.board,
             b.firmware_version[0],
             b.firmware_version[1],
             b.firmware_version[2],
             b.protocol_version,
-            b.schema_fingerprint
+            b.schema_fingerprint,
+            b.calibration.store,
+            b.calibration.config_stored,
+            b.calibration.imu_stored,
+            b.calibration.dvl_stored,
+            b.calibration.polarization_units_stored
         ),
         Uplink::Nav(n) => format!(
             "nav     t={} mode={:?} pos_ned_m={} vel_ned_mps={} sigma_pos_m={}",
@@ -75,6 +80,10 @@ pub fn text(m: &Uplink) -> String {
             h.late_refused
         ),
         Uplink::Fault(f) => format!("FAULT   t={} {}: {} count={}", secs(f.t_us), f.source, f.kind, f.count),
+        Uplink::Record(r) => match &r.stored {
+            Some(rec) => format!("record  t={} {}: {rec:?}", secs(r.t_us), r.key),
+            None => format!("record  t={} {}: nothing stored (defaults in use)", secs(r.t_us), r.key),
+        },
         Uplink::Ack(a) => format!("ack     seq={} {}", a.seq, a.result.map_or_else(|r| format!("refused: {r}"), |()| "ok".to_string())),
     }
 }

@@ -35,6 +35,10 @@ pub struct Args {
     /// Run without the simulated sensors (every bus transaction is NACKed).
     #[arg(long)]
     pub no_sensors: bool,
+    /// Keep the head's store (its W25Q flash) in this file: configuration and calibrations
+    /// survive across runs (created erased when missing). Default: an erased flash in memory.
+    #[arg(long, value_name = "FILE")]
+    pub flash: Option<PathBuf>,
     /// Seed of the simulated dive (default scenario: survey at 10 m, Bay of Biscay, June morning).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -54,7 +58,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         Box::new(qemu::NothingAttached)
     } else {
         cfg.board_args = scenario.board_args();
-        Box::new(subnav_sil::SimHead::new(&scenario))
+        let head = subnav_sil::SimHead::new(&scenario);
+        match &args.flash {
+            Some(p) => Box::new(head.with_flash(subnav_sil::chips::w25q::W25qModel::with_file(p)?)),
+            None => Box::new(head),
+        }
     };
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
     // With the simulated sensors, the viewer also gets the truth.

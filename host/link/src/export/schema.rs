@@ -31,8 +31,8 @@ fn tagged(variants: &[&str]) -> Value {
 }
 
 /// The uplink message kinds (as `Uplink::kind`) in export order.
-pub const KINDS: [&str; 11] =
-    ["boot", "nav", "raw.imu", "raw.polarization", "raw.depth", "raw.dvl", "compass", "health", "fault", "ack", "camera.trigger"];
+pub const KINDS: [&str; 12] =
+    ["boot", "nav", "raw.imu", "raw.polarization", "raw.depth", "raw.dvl", "compass", "health", "fault", "ack", "camera.trigger", "record"];
 
 /// Schema name and JSON Schema of a message kind.
 pub fn for_kind(kind: &str) -> Option<(String, Value)> {
@@ -46,6 +46,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("schema_fingerprint", int()),
                 ("firmware_version", json!({"type": "array", "items": int()})),
                 ("board", tagged(&["QemuMps2An386", "Stm32F405"])),
+                ("calibration", json!({"type": "object"})),
             ],
         ),
         "nav" => obj(
@@ -112,7 +113,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             "subnav.Fault",
             &[
                 ("t_us", t),
-                ("source", tagged(&["Imu", "Depth", "Dvl", "Camera", "Link", "Filter", "Scheduler", "Polarization"])),
+                ("source", tagged(&["Imu", "Depth", "Dvl", "Camera", "Link", "Filter", "Scheduler", "Store", "Polarization"])),
                 (
                     "kind",
                     tagged(&[
@@ -139,6 +140,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
         ),
         "ack" => obj("subnav.CommandAck", &[("seq", int()), ("result", json!({"type": "object"}))]),
         "camera.trigger" => obj("subnav.CameraTrigger", &[("t_us", t), ("frame", int())]),
+        "record" => obj("subnav.RecordReport", &[("t_us", t), ("key", json!({})), ("stored", json!({}))]),
         _ => return None,
     };
     let name = s["title"].as_str().unwrap_or(kind).to_string();
@@ -159,6 +161,7 @@ pub fn message_json(m: &Uplink, t_host_us: u64) -> Value {
         Uplink::Fault(x) => serde_json::to_value(x),
         Uplink::Ack(x) => serde_json::to_value(x),
         Uplink::Trigger(x) => serde_json::to_value(x),
+        Uplink::Record(x) => serde_json::to_value(x),
     };
     let mut v = inner.unwrap_or(Value::Null);
     if let Value::Object(o) = &mut v {

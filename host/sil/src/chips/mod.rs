@@ -14,6 +14,7 @@
 //! | [`ms5837::Ms5837Model`] | MS5837-30BA | I2C 0x76 | [`ms5837::PressureInput`] (absolute Pa, deg C) |
 //! | [`dvl_a50::DvlA50Model`] | Water Linked DVL-A50 | UART 0 | [`dvl_a50::DvlInput`] (body velocity and rate, altitude, current) |
 //! | [`camera::CameraModel`] | downward polarization camera (IMX250MZR-class) | trigger on GPIO 0 | the rendered seafloor at the truth pose of each trigger |
+//! | [`w25q::W25qModel`] | Winbond W25Q16JV 2 MiB NOR flash (the store) | SPI 0, CS 1 | its contents (memory or a file), power cuts |
 //! | [`modem::ModemModel`] | acoustic modem / USBL link delivering downlink frames | UART 1 | frames with their arrival times |
 //!
 //! Time: every call carries `t_us`, the firmware's timestamp of the transaction (the bridge's
@@ -44,6 +45,7 @@ pub mod dvl_a50;
 pub mod icm42688;
 pub mod modem;
 pub mod ms5837;
+pub mod w25q;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -187,6 +189,12 @@ impl ChipSet {
     /// Attach an SPI chip to bus `bus`, chip select `cs`.
     pub fn attach_spi(&mut self, bus: u8, cs: u8, chip: impl SpiChip + 'static) -> &mut Self {
         self.spi.push((bus, cs, Box::new(chip)));
+        self
+    }
+
+    /// Remove the SPI chip at `bus` / `cs` (to attach another one there).
+    pub fn detach_spi(&mut self, bus: u8, cs: u8) -> &mut Self {
+        self.spi.retain(|(b, c, _)| (*b, *c) != (bus, cs));
         self
     }
 

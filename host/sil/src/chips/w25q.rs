@@ -1,0 +1,358 @@
+//! Winbond W25Q16JV SPI NOR flash (2 MiB): the sensor head's persistent store.
+//!
+//! What the silicon does: READ DATA (0x03) streams from any address; PAGE PROGRAM (0x02) ANDs
+//! its bytes into the addressed page (wrapping inside the 256-byte page, only clearing bits),
+//! applied when chip select rises and only after WRITE ENABLE (0x06); SECTOR ERASE (0x20) sets a
+//! 4 KiB sector to 0xFF, likewise; READ STATUS 1 (0x05) shows BUSY and WEL; JEDEC ID (0x9F).
+//! Programs and erases complete at once (BUSY reads 0): the firmware's busy poll is exercised by
+//! its unit tests, not here.
+//!
+//! Persistence: [`W25qModel::with_file`] keeps the contents in a file (created erased when
+//! missing), written through on every program and erase, so a QEMU head keeps its store across
+//! runs, and a killed run leaves exactly what the chip had.
+//!
+//! Power loss: [`PowerCut`] stops the chip inside its `at_operation`-th program or erase (counting
+//! from 0 since the model was made): a program has only a random prefix of its bytes written and
+//! one byte half-programmed (a random subset of its cleared bits); an erase leaves a random
+//! prefix of the sector erased and the next 16 bytes with random bits set. After the cut the chip
+//! is dead (every transaction times out), as the firmware would see it while the supply falls.
+
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::path::Path;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::{BusFault, BusFaults, SpiChip};
+
+pub const CAPACITY_BYTES: usize = 2 * 1024 * 1024;
+pub const SECTOR_BYTES: usize = 4096;
+pub const PAGE_BYTES: usize = 256;
+pub const JEDEC_ID: [u8; 3] = [0xEF, 0x40, 0x15];
+
+/// Where the power fails.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PowerCut {
+    /// The program or erase (0-based count) during which power fails.
+    pub at_operation: u64,
+    /// Seeds how much of that operation completes.
+    pub seed: u64,
+    /// Set once the cut has happened.
+    pub happened: bool,
+    /// The cut hit an erase (else a program).
+    pub in_erase: bool,
+}
+
+/// Operations served since the model was made.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FlashCounters {
+    pub programs: u64,
+    pub erases: u64,
+    pub reads: u64,
+    /// Programs and erases refused for a missing WRITE ENABLE.
+    pub refused_writes: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    Command,
+    Address { cmd: u8, got: usize, addr: u32 },
+    Data { cmd: u8, addr: u32, pos: usize },
+    Ignore,
+}
+
+pub struct W25qModel {
+    mem: Vec<u8>,
+    file: Option<File>,
+    phase: Phase,
+    /// Bytes of the page program being clocked in.
+    program: Vec<u8>,
+    wel: bool,
+    dead: bool,
+    pub faults: BusFaults,
+    pub power_cut: Option<PowerCut>,
+    pub counters: FlashCounters,
+    /// Operation numbers (as `PowerCut::at_operation` counts them) of the erases served.
+    pub erase_operations: Vec<u64>,
+}
+
+impl Default for W25qModel {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl W25qModel {
+    /// An erased chip in memory.
+    pub fn new() -> Self {
+        Self::from_contents(vec![0xFF; CAPACITY_BYTES])
+    }
+
+    /// A chip holding `mem` (e.g. what a power-cut chip left).
+    pub fn from_contents(mut mem: Vec<u8>) -> Self {
+        mem.resize(CAPACITY_BYTES, 0xFF);
+        Self {
+            mem,
+            file: None,
+            phase: Phase::Command,
+            program: Vec::new(),
+            wel: false,
+            dead: false,
+            faults: BusFaults::default(),
+            power_cut: None,
+            counters: FlashCounters::default(),
+            erase_operations: Vec::new(),
+        }
+    }
+
+    /// A chip whose contents live in `path` (created erased when missing). Errors name the file.
+    pub fn with_file(path: &Path) -> anyhow::Result<Self> {
+        use anyhow::Context as _;
+        let mut f = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path)
+            .with_context(|| format!("flash image {}: cannot open", path.display()))?;
+        let mut mem = Vec::new();
+        f.read_to_end(&mut mem).with_context(|| format!("flash image {}: cannot read", path.display()))?;
+        if mem.len() > CAPACITY_BYTES {
+            anyhow::bail!("flash image {}: {} bytes, larger than the chip's {CAPACITY_BYTES}", path.display(), mem.len());
+        }
+        if mem.len() < CAPACITY_BYTES {
+            mem.resize(CAPACITY_BYTES, 0xFF);
+            f.seek(SeekFrom::Start(0))?;
+            f.write_all(&mem).with_context(|| format!("flash image {}: cannot write", path.display()))?;
+        }
+        let mut m = Self::from_contents(mem);
+        m.file = Some(f);
+        Ok(m)
+    }
+
+    pub fn contents(&self) -> &[u8] {
+        &self.mem
+    }
+
+    pub fn is_dead(&self) -> bool {
+        self.dead
+    }
+
+    fn persist(&mut self, start: usize, len: usize) {
+        if let (Some(f), Some(bytes)) = (self.file.as_mut(), self.mem.get(start..start + len)) {
+            // A write error leaves the image stale; the in-memory chip is still right. Reported
+            // once on stderr rather than failing the bus (a real chip does not know about files).
+            if f.seek(SeekFrom::Start(start as u64)).and_then(|_| f.write_all(bytes)).is_err() {
+                eprintln!("w25q model: could not write the flash image");
+                self.file = None;
+            }
+        }
+    }
+
+    /// Whether this operation is the one the power fails in; counts it.
+    fn cut_now(&mut self) -> Option<ChaCha8Rng> {
+        let n = self.counters.programs + self.counters.erases;
+        match self.power_cut.as_mut() {
+            Some(c) if !c.happened && c.at_operation == n => {
+                c.happened = true;
+                Some(ChaCha8Rng::seed_from_u64(c.seed))
+            }
+            _ => None,
+        }
+    }
+
+    fn do_program(&mut self, addr: u32) {
+        let cut = self.cut_now();
+        self.counters.programs += 1;
+        let page = (addr as usize) & !(PAGE_BYTES - 1);
+        let mut off = (addr as usize) % PAGE_BYTES;
+        let data = std::mem::take(&mut self.program);
+        let n = data.len();
+        let mut cut = cut;
+        let done = match cut.as_mut() {
+            Some(rng) => rng.random_range(0..=n),
+            None => n,
+        };
+        for (i, b) in data.iter().enumerate() {
+            let Some(cell) = self.mem.get_mut(page + off) else { break };
+            if i < done {
+                *cell &= *b;
+            } else if i == done {
+                if let Some(rng) = cut.as_mut() {
+                    // Half-programmed: some of the bits that should clear did.
+                    let clear = !*b & rng.random::<u8>();
+                    *cell &= !clear;
+                }
+                break;
+            }
+            off = (off + 1) % PAGE_BYTES;
+        }
+        self.persist(page, PAGE_BYTES);
+        if cut.is_some() {
+            self.dead = true;
+        }
+    }
+
+    fn do_erase(&mut self, addr: u32) {
+        self.erase_operations.push(self.counters.programs + self.counters.erases);
+        let mut cut = self.cut_now();
+        if let (Some(_), Some(c)) = (&cut, self.power_cut.as_mut()) {
+            c.in_erase = true;
+        }
+        self.counters.erases += 1;
+        let start = (addr as usize) & !(SECTOR_BYTES - 1);
+        let done = match cut.as_mut() {
+            Some(rng) => rng.random_range(0..=SECTOR_BYTES),
+            None => SECTOR_BYTES,
+        };
+        if let Some(s) = self.mem.get_mut(start..start + SECTOR_BYTES) {
+            for (i, cell) in s.iter_mut().enumerate() {
+                if i < done {
+                    *cell = 0xFF;
+                } else if i < done + 16 {
+                    if let Some(rng) = cut.as_mut() {
+                        *cell |= rng.random::<u8>();
+                    }
+                }
+            }
+        }
+        self.persist(start, SECTOR_BYTES);
+        if cut.is_some() {
+            self.dead = true;
+        }
+    }
+
+    fn status(&self) -> u8 {
+        if self.wel { 0x02 } else { 0x00 }
+    }
+}
+
+impl SpiChip for W25qModel {
+    fn begin(&mut self, t_us: u64) -> Result<(), BusFault> {
+        if self.dead {
+            return Err(BusFault::Timeout);
+        }
+        self.faults.check(t_us)?;
+        self.phase = Phase::Command;
+        self.program.clear();
+        Ok(())
+    }
+
+    fn transfer(&mut self, _t_us: u64, write: &[u8], read: &mut [u8]) -> Result<(), BusFault> {
+        if self.dead {
+            return Err(BusFault::Timeout);
+        }
+        let n = write.len().max(read.len());
+        for i in 0..n {
+            let mosi = write.get(i).copied().unwrap_or(0);
+            let mut miso = 0xFF;
+            self.phase = match self.phase {
+                Phase::Command => match mosi {
+                    0x03 | 0x02 | 0x20 => Phase::Address { cmd: mosi, got: 0, addr: 0 },
+                    0x05 | 0x9F => Phase::Data { cmd: mosi, addr: 0, pos: 0 },
+                    0x06 => {
+                        self.wel = true;
+                        Phase::Ignore
+                    }
+                    0x04 => {
+                        self.wel = false;
+                        Phase::Ignore
+                    }
+                    _ => Phase::Ignore,
+                },
+                Phase::Address { cmd, got, addr } => {
+                    let addr = (addr << 8) | u32::from(mosi);
+                    if got + 1 == 3 { Phase::Data { cmd, addr: addr % CAPACITY_BYTES as u32, pos: 0 } } else { Phase::Address { cmd, got: got + 1, addr } }
+                }
+                Phase::Data { cmd, addr, pos } => {
+                    match cmd {
+                        0x03 => {
+                            miso = self.mem.get((addr as usize + pos) % CAPACITY_BYTES).copied().unwrap_or(0xFF);
+                            self.counters.reads += 1;
+                        }
+                        0x05 => miso = self.status(),
+                        0x9F => miso = JEDEC_ID.get(pos).copied().unwrap_or(0xFF),
+                        0x02 => {
+                            if self.program.len() < PAGE_BYTES {
+                                self.program.push(mosi);
+                            }
+                        }
+                        _ => {}
+                    }
+                    Phase::Data { cmd, addr, pos: pos + 1 }
+                }
+                Phase::Ignore => Phase::Ignore,
+            };
+            if let Some(r) = read.get_mut(i) {
+                *r = miso;
+            }
+        }
+        Ok(())
+    }
+
+    fn end(&mut self, _t_us: u64) {
+        if self.dead {
+            return;
+        }
+        if let Phase::Data { cmd: cmd @ (0x02 | 0x20), addr, .. } = self.phase {
+            if self.wel {
+                if cmd == 0x02 { self.do_program(addr) } else { self.do_erase(addr) }
+            } else {
+                self.counters.refused_writes += 1;
+            }
+            self.wel = false;
+        }
+        self.phase = Phase::Command;
+    }
+}
+
+/// An embedded-hal `SpiDevice` straight onto one chip model (no bridge, no time): for tests
+/// that run a driver against its model in-process.
+pub struct DirectSpi<'a, C: SpiChip> {
+    pub chip: &'a mut C,
+    pub t_us: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DirectSpiError(pub BusFault);
+
+impl embedded_hal::spi::Error for DirectSpiError {
+    fn kind(&self) -> embedded_hal::spi::ErrorKind {
+        embedded_hal::spi::ErrorKind::Other
+    }
+}
+
+impl subnav_firmware::drivers::BusErrorKind for DirectSpiError {
+    fn fault_kind(&self) -> subnav_wire::FaultKind {
+        match self.0 {
+            BusFault::Nack => subnav_wire::FaultKind::BusNack,
+            BusFault::Timeout => subnav_wire::FaultKind::BusTimeout,
+            BusFault::Other => subnav_wire::FaultKind::BusOther,
+        }
+    }
+}
+
+impl<C: SpiChip> embedded_hal::spi::ErrorType for DirectSpi<'_, C> {
+    type Error = DirectSpiError;
+}
+
+impl<C: SpiChip> embedded_hal::spi::SpiDevice for DirectSpi<'_, C> {
+    fn transaction(&mut self, ops: &mut [embedded_hal::spi::Operation<'_, u8>]) -> Result<(), DirectSpiError> {
+        use embedded_hal::spi::Operation;
+        let t = self.t_us;
+        self.chip.begin(t).map_err(DirectSpiError)?;
+        let r = ops.iter_mut().try_for_each(|op| match op {
+            Operation::Write(w) => self.chip.transfer(t, w, &mut []),
+            Operation::Read(r) => self.chip.transfer(t, &[], r),
+            Operation::Transfer(r, w) => self.chip.transfer(t, w, r),
+            Operation::TransferInPlace(b) => {
+                let w = b.to_vec();
+                self.chip.transfer(t, &w, b)
+            }
+            Operation::DelayNs(_) => Ok(()),
+        });
+        self.chip.end(t);
+        r.map_err(DirectSpiError)
+    }
+}
