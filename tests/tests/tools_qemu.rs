@@ -12,6 +12,7 @@ use subnav_link::defmt_log::DefmtTable;
 use subnav_link::export::{TimeBase, mcap::write, schema};
 use subnav_link::qemu::{QemuConfig, QemuEvent, run};
 use subnav_link::record::{read_file, session::Session, tap::QemuRecorder};
+use subnav_wire::Uplink;
 
 #[test]
 fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {
@@ -52,8 +53,22 @@ fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {
     for m in &s.messages {
         *expected.entry(format!("/subnav/{}", m.item.kind())).or_insert(0) += 1;
     }
+    // The derived topics (`subnav_link::export::topics`): pose and its covariance per nav
+    // message, a health summary per health message, a log entry per fault, a compass fix per
+    // report with a heading.
     if let Some(n) = expected.get("/subnav/nav").copied() {
         expected.insert("/subnav/pose".into(), n);
+        expected.insert("/subnav/pose/covariance".into(), n);
+    }
+    if let Some(n) = expected.get("/subnav/health").copied() {
+        expected.insert("/subnav/health/summary".into(), n);
+    }
+    if let Some(n) = expected.get("/subnav/fault").copied() {
+        expected.insert("/subnav/faults".into(), n);
+    }
+    let fixes = s.messages.iter().filter(|m| matches!(m.item, Uplink::Compass(c) if c.heading_rad.is_some())).count() as u64;
+    if fixes > 0 {
+        expected.insert("/subnav/compass/fix".into(), fixes);
     }
     expected.insert("/subnav/log".into(), s.logs.len() as u64);
     assert_eq!(summary.topics, expected);
@@ -75,7 +90,10 @@ fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {
         assert_eq!(t["message_encoding"], "json", "{topic}");
         let want = match topic.as_str() {
             "/subnav/pose" => "foxglove.PoseInFrame".to_string(),
-            "/subnav/log" => "foxglove.Log".to_string(),
+            "/subnav/log" | "/subnav/faults" => "foxglove.Log".to_string(),
+            "/subnav/pose/covariance" => "subnav.PoseCovariance".to_string(),
+            "/subnav/health/summary" => "subnav.HealthSummary".to_string(),
+            "/subnav/compass/fix" => "subnav.CompassFix".to_string(),
             k => schema::for_kind(k.trim_start_matches("/subnav/")).unwrap().0,
         };
         assert_eq!(t["schema"], want.as_str(), "{topic}");
