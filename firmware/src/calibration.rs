@@ -128,7 +128,9 @@ pub fn run_config(r: &RunConfigRecord) -> Result<AppConfig, Refusal> {
             if !(o.lat_rad.is_finite() && o.lon_rad.is_finite() && o.alt_m.is_finite()) {
                 return Err(Refusal::NotFinite);
             }
-            if o.lat_rad.abs() > core::f64::consts::FRAC_PI_2 || o.lon_rad.abs() > core::f64::consts::PI || !(-12_000.0..=10_000.0).contains(&o.alt_m)
+            if o.lat_rad.abs() > core::f64::consts::FRAC_PI_2
+                || o.lon_rad.abs() > core::f64::consts::PI
+                || !(-12_000.0..=10_000.0).contains(&o.alt_m)
             {
                 return Err(Refusal::OutOfRange);
             }
@@ -191,7 +193,13 @@ mod tests {
         assert_eq!(unit_model(&p), Err(Refusal::NotFinite));
         assert_eq!(unit_model(&nominal_polarization(9)), Err(Refusal::OutOfRange));
         let eye = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0];
-        let mut c = ImuCalibration { gyro_bias_radps: [0.0; 3], accel_bias_mps2: [0.0; 3], gyro_correction: eye, accel_correction: eye, body_from_imu_wxyz: [0.5, 0.5, 0.5, 0.5] };
+        let mut c = ImuCalibration {
+            gyro_bias_radps: [0.0; 3],
+            accel_bias_mps2: [0.0; 3],
+            gyro_correction: eye,
+            accel_correction: eye,
+            body_from_imu_wxyz: [0.5, 0.5, 0.5, 0.5],
+        };
         assert!(ImuCorrection::new(&c).is_ok());
         c.body_from_imu_wxyz = [2.0, 0.0, 0.0, 0.0];
         assert_eq!(ImuCorrection::new(&c), Err(Refusal::OutOfRange));
@@ -203,7 +211,13 @@ mod tests {
         let eye = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0];
         let mut g = eye;
         g[0] = 1.0 / 1.1;
-        let c = ImuCalibration { gyro_bias_radps: [0.01, 0.0, 0.0], accel_bias_mps2: [0.0; 3], gyro_correction: g, accel_correction: eye, body_from_imu_wxyz: [1.0, 0.0, 0.0, 0.0] };
+        let c = ImuCalibration {
+            gyro_bias_radps: [0.01, 0.0, 0.0],
+            accel_bias_mps2: [0.0; 3],
+            gyro_correction: g,
+            accel_correction: eye,
+            body_from_imu_wxyz: [1.0, 0.0, 0.0, 0.0],
+        };
         let k = ImuCorrection::new(&c).unwrap();
         let raw = ImuSample { t_us: 0, gyro_radps: [1.1 * 0.2 + 0.01, 0.0, 0.0], accel_mps2: [0.0, 0.0, -9.81], temp_c: 0.0 };
         let out = k.apply(&raw);

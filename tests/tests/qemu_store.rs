@@ -11,7 +11,7 @@ use subnav_link::qemu::{Downlinker, QemuConfig, QemuEvent, run_with_bus};
 use subnav_sil::chips::w25q::W25qModel;
 use subnav_sil::{Scenario, SimHead};
 use subnav_wire::{
-    CommandAck, Command, ConfigItem, FaultKind, FaultSource, PolarizationCalibration, Record, RecordKey, Refusal, StoreStatus, Uplink,
+    Command, CommandAck, ConfigItem, FaultKind, FaultSource, PolarizationCalibration, Record, RecordKey, Refusal, StoreStatus, Uplink,
 };
 
 fn calibration(unit: u8, gain: f32) -> Record {

@@ -317,8 +317,9 @@ mod tests {
 
     #[test]
     fn key_ids_are_distinct_and_invert() {
-        let keys =
-            [RecordKey::RunConfig, RecordKey::Imu, RecordKey::DvlMounting].into_iter().chain((0..4).map(|unit| RecordKey::Polarization { unit }));
+        let keys = [RecordKey::RunConfig, RecordKey::Imu, RecordKey::DvlMounting]
+            .into_iter()
+            .chain((0..4).map(|unit| RecordKey::Polarization { unit }));
         let mut seen = std::collections::BTreeSet::new();
         for k in keys {
             assert!(seen.insert(k.id()));

@@ -137,7 +137,14 @@ fn mcap_export_reads_back_with_expected_channels_schemas_and_counts() {
     assert_eq!(got["/subnav/health/summary"].3, counts["health"]);
     assert_eq!(got["/subnav/faults"], ("foxglove.Log".into(), "jsonschema".into(), "json".into(), counts["fault"]));
     assert!(got["/subnav/trajectory"].3 >= 2, "{got:?}");
-    let derived = ["/subnav/pose", "/subnav/pose/covariance", "/subnav/trajectory", "/subnav/health/summary", "/subnav/faults", "/subnav/link/corrupt"];
+    let derived = [
+        "/subnav/pose",
+        "/subnav/pose/covariance",
+        "/subnav/trajectory",
+        "/subnav/health/summary",
+        "/subnav/faults",
+        "/subnav/link/corrupt",
+    ];
     let compass_fixes = got.get("/subnav/compass/fix").map_or(0, |_| 1);
     assert_eq!(got.len(), counts.len() + derived.len() + compass_fixes, "{got:?}");
     for (topic, (name, ..)) in &got {

@@ -37,7 +37,11 @@ fn client(mode: &str, port: u16, timeout_s: u32) -> std::process::Child {
 
 /// The default job (camera and map in the loop), shortened: `subnav run --native`.
 fn run_args(rec: &Path) -> Vec<String> {
-    ["run", "--native", "--quiet", "--duration-s", "60", "--record"].iter().map(|s| s.to_string()).chain([rec.display().to_string()]).collect()
+    ["run", "--native", "--quiet", "--duration-s", "60", "--record"]
+        .iter()
+        .map(|s| s.to_string())
+        .chain([rec.display().to_string()])
+        .collect()
 }
 
 /// The chunks of a recording (stream, host time, bytes) and its metadata without the wall-clock
@@ -134,11 +138,8 @@ fn a_client_that_never_reads_neither_delays_the_run_nor_costs_the_recording() {
     let port = free_port();
     let mut stalled = client("stall", port, 600);
     let t0 = Instant::now();
-    let out = subnav()
-        .args(run_args(&live_rec))
-        .args(["--foxglove", &format!("127.0.0.1:{port}"), "--foxglove-wait-s", "60"])
-        .output()
-        .unwrap();
+    let out =
+        subnav().args(run_args(&live_rec)).args(["--foxglove", &format!("127.0.0.1:{port}"), "--foxglove-wait-s", "60"]).output().unwrap();
     let live_s = t0.elapsed();
     let _ = stalled.kill();
     let _ = stalled.wait();

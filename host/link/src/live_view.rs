@@ -47,13 +47,31 @@ pub const SHUTDOWN_BOUND: Duration = Duration::from_secs(2);
 /// One event of a dive, as the link or the simulation sees it.
 #[derive(Debug, Clone)]
 pub enum LiveEvent {
-    Uplink { t_host_us: u64, msg: Uplink },
-    Log { t_host_us: u64, line: LogLine },
-    Corrupt { t_host_us: u64, error: String },
+    Uplink {
+        t_host_us: u64,
+        msg: Uplink,
+    },
+    Log {
+        t_host_us: u64,
+        line: LogLine,
+    },
+    Corrupt {
+        t_host_us: u64,
+        error: String,
+    },
     /// The simulator's truth at sensor time `t_sensor_us`.
-    Truth { t_host_us: u64, t_sensor_us: u64, pos_ned_m: [f64; 3], yaw_rad: f64 },
+    Truth {
+        t_host_us: u64,
+        t_sensor_us: u64,
+        pos_ned_m: [f64; 3],
+        yaw_rad: f64,
+    },
     /// The whole map as it is now.
-    Map { t_host_us: u64, nodes: Vec<MapNode>, closures: Vec<MapClosure> },
+    Map {
+        t_host_us: u64,
+        nodes: Vec<MapNode>,
+        closures: Vec<MapClosure>,
+    },
 }
 
 /// What a live session did, reported at its end.

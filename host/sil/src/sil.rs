@@ -16,10 +16,10 @@ use embedded_io::Read as _;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
 use subnav_firmware::app::SERIAL_POLL_US;
-use subnav_firmware::drivers::w25q::W25q;
-use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
+use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
 use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
 

@@ -26,7 +26,11 @@ fn random_record(key: RecordKey, rng: &mut ChaCha8Rng) -> Record {
             nav_rate_hz: rng.random_range(1..=50),
             stream_raw: rng.random(),
             water_density_kgm3: rng.random_range(1000.0..1040.0),
-            origin: rng.random::<bool>().then(|| Origin { lat_rad: rng.random_range(-1.0..1.0), lon_rad: rng.random_range(-3.0..3.0), alt_m: 0.0 }),
+            origin: rng.random::<bool>().then(|| Origin {
+                lat_rad: rng.random_range(-1.0..1.0),
+                lon_rad: rng.random_range(-3.0..3.0),
+                alt_m: 0.0,
+            }),
         }),
         RecordKey::Polarization { unit } => Record::Polarization(PolarizationCalibration {
             unit,
@@ -124,7 +128,13 @@ fn every_key_reads_old_or_new_after_a_power_cut() {
                 break (key, op, dry);
             }
             assert!(apply(&mut chip, op));
-            expected.insert(key.id(), match op { Op::Save(r) => Some(r), Op::Erase(_) => None });
+            expected.insert(
+                key.id(),
+                match op {
+                    Op::Save(r) => Some(r),
+                    Op::Erase(_) => None,
+                },
+            );
             writes += 1;
         };
         let ops = dry.counters.programs + dry.counters.erases;

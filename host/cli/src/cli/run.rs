@@ -228,8 +228,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 }
             }
         };
-        let observer: Option<subnav_sil::sil::NativeObserver> =
-            if feed.is_some() || args.speed.is_some() { Some(&observe) } else { None };
+        let observer: Option<subnav_sil::sil::NativeObserver> = if feed.is_some() || args.speed.is_some() { Some(&observe) } else { None };
         let run = run_native_observed(&sc, Some(&progress), record.is_some(), observer);
         if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;

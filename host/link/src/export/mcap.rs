@@ -10,8 +10,8 @@ use std::io::{Seek, Write};
 use anyhow::{Context, Result, anyhow};
 use serde::Serialize;
 
-use super::{Event, TimeBase};
 use super::topics::{Msg, Projector, schema_of};
+use super::{Event, TimeBase};
 use crate::record::session::Session;
 
 /// What an export wrote: messages per topic.

@@ -173,7 +173,8 @@ impl Projector {
             self.last_sensor_us = ts;
         }
         let t = self.t(t_host_us);
-        let push = |out: &mut Vec<Msg>, topic: &str, json: Value| out.push(Msg { topic: topic.to_string(), t_us: t, publish_us: t_host_us, json });
+        let push =
+            |out: &mut Vec<Msg>, topic: &str, json: Value| out.push(Msg { topic: topic.to_string(), t_us: t, publish_us: t_host_us, json });
         push(out, &uplink_topic(m.kind()), message_json(m, t_host_us));
         match m {
             Uplink::Nav(n) => {
@@ -296,7 +297,12 @@ impl Projector {
         };
         let (s, c) = (0.5 * yaw_rad_true).sin_cos();
         let pose = json!({"position": xyz(pos_ned_m), "orientation": {"x": 0.0, "y": 0.0, "z": s, "w": c}});
-        out.push(Msg { topic: TRUTH_POSE.into(), t_us: t, publish_us: t_host_us, json: json!({"timestamp": stamp(t), "frame_id": FRAME, "pose": pose}) });
+        out.push(Msg {
+            topic: TRUTH_POSE.into(),
+            t_us: t,
+            publish_us: t_host_us,
+            json: json!({"timestamp": stamp(t), "frame_id": FRAME, "pose": pose}),
+        });
         let Some(n) = self.last_nav else { return };
         let [sn, se, _] = n.sigma_pos_m.map(f);
         let (en, ee) = (f(n.pos_ned_m[0]) - pos_ned_m[0], f(n.pos_ned_m[1]) - pos_ned_m[1]);
@@ -415,7 +421,8 @@ pub fn scene_update_schema() -> Value {
         "cubes": arr(json!({"type": "object"})), "spheres": arr(sphere), "cylinders": arr(json!({"type": "object"})), "lines": arr(line),
         "triangles": arr(json!({"type": "object"})), "texts": arr(json!({"type": "object"})), "models": arr(json!({"type": "object"}))},
         "required": ["timestamp", "frame_id", "id", "lifetime", "frame_locked", "lines", "spheres"]});
-    let deletion = json!({"type": "object", "properties": {"timestamp": time_schema(), "type": {"type": "integer"}, "id": {"type": "string"}}});
+    let deletion =
+        json!({"type": "object", "properties": {"timestamp": time_schema(), "type": {"type": "integer"}, "id": {"type": "string"}}});
     json!({"$schema": "http://json-schema.org/draft-07/schema#", "title": "foxglove.SceneUpdate", "description": "An update to the entities displayed in a 3D scene",
            "type": "object", "properties": {"deletions": arr(deletion), "entities": arr(entity)}, "required": ["deletions", "entities"]})
 }

@@ -263,7 +263,11 @@ impl SpiChip for W25qModel {
                 },
                 Phase::Address { cmd, got, addr } => {
                     let addr = (addr << 8) | u32::from(mosi);
-                    if got + 1 == 3 { Phase::Data { cmd, addr: addr % CAPACITY_BYTES as u32, pos: 0 } } else { Phase::Address { cmd, got: got + 1, addr } }
+                    if got + 1 == 3 {
+                        Phase::Data { cmd, addr: addr % CAPACITY_BYTES as u32, pos: 0 }
+                    } else {
+                        Phase::Address { cmd, got: got + 1, addr }
+                    }
                 }
                 Phase::Data { cmd, addr, pos } => {
                     match cmd {

@@ -482,7 +482,8 @@ mod tests {
     #[test]
     fn fit_with_active_set_equals_full_scans() {
         let n = 90;
-        let x = DMatrix::from_fn(n, 4, |i, j| (((i * 31 + j * 17) % 23) as f64 / 5.0).sin() * 2.0 + (i % 3) as f64 * 0.4 * (j as f64 - 1.5));
+        let x =
+            DMatrix::from_fn(n, 4, |i, j| (((i * 31 + j * 17) % 23) as f64 / 5.0).sin() * 2.0 + (i % 3) as f64 * 0.4 * (j as f64 - 1.5));
         let y: Vec<i64> = (0..n).map(|i| (i % 3) as i64).collect();
         let base = LmnnConfig { max_iter: 300, ..LmnnConfig::default() };
         let (la, ra) = fit(&x, &y, &LmnnConfig { active_set_eps: 0.5, ..base }).expect("fit");
