@@ -136,6 +136,16 @@ pub fn host_cargo() -> Command {
     c
 }
 
+/// Whether `cargo nextest` is installed (it is on the CI machines; a laptop may not have it).
+fn have_nextest() -> bool {
+    host_cargo()
+        .args(["nextest", "--version"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
 fn test(rest: &[String]) -> Result<()> {
     let started = std::time::Instant::now();
     setup::ensure_system_packages()?;
@@ -152,11 +162,26 @@ fn test(rest: &[String]) -> Result<()> {
     let python = setup::peer_venv()?;
 
     let qemu_elf = elfs.iter().find(|(b, _)| *b == firmware::Board::Qemu).map(|(_, e)| e.clone()).context("no QEMU ELF")?;
-    let mut c = host_cargo();
-    c.args(["test", "--workspace"]);
-    c.args(rest.iter().skip_while(|a| *a != "--"));
-    c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python);
-    run(&mut c)?;
+    let passthrough: Vec<&String> = rest.iter().skip_while(|a| *a != "--").collect();
+    if passthrough.is_empty() && have_nextest() {
+        // cargo-nextest runs the test binaries side by side (cargo test runs them one after the
+        // other, so a binary with one long QEMU dive leaves a core idle); it does not run
+        // doctests, which follow.
+        let mut c = host_cargo();
+        c.args(["nextest", "run", "--workspace", "--no-fail-fast", "--final-status-level", "slow"]);
+        c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python);
+        run(&mut c)?;
+        let mut c = host_cargo();
+        c.args(["test", "--workspace", "--doc"]);
+        run(&mut c)?;
+    } else {
+        // Without cargo-nextest, or with arguments for the test harness (`cargo xtask test -- X`).
+        let mut c = host_cargo();
+        c.args(["test", "--workspace"]);
+        c.args(passthrough);
+        c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python);
+        run(&mut c)?;
+    }
     // `subnav flash` / `attach` (probe-rs) cannot be exercised without a board; build them so
     // they cannot rot.
     let mut c = host_cargo();
