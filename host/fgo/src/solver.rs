@@ -263,8 +263,18 @@ impl Chain {
     }
 }
 
-fn solve_lm_chain(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -> Result<LmReport, FgoError> {
-    let mut ch = Chain::new(nodes.len());
+/// The Levenberg-Marquardt loop both linear solvers share: relinearise, try damped steps with
+/// GTSAM's schedule until one lowers the cost, stop on a small decrease or step, or when no
+/// damping lowers the cost (a minimum to machine precision). `linearize` rebuilds the normal
+/// equations at the nodes; `step` solves them damped by lambda and returns the increment per
+/// node, or `None` when the damped system is not positive definite (more damping follows).
+fn levenberg_marquardt(
+    nodes: &mut [NodeState],
+    factors: &[Factor],
+    opts: &LmOptions,
+    mut linearize: impl FnMut(&[NodeState]) -> Result<(), FgoError>,
+    mut step: impl FnMut(f64) -> Option<Vec<Tangent>>,
+) -> Result<LmReport, FgoError> {
     let initial_cost = total_cost(nodes, factors)?;
     let mut cost = initial_cost;
     let mut lambda = opts.lambda_initial;
@@ -272,89 +282,20 @@ fn solve_lm_chain(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions)
     let mut iterations = 0;
     while iterations < opts.max_iterations {
         iterations += 1;
-        ch.fill(nodes, factors)?;
+        linearize(nodes)?;
         let mut accepted = false;
         let mut step_small = false;
         while lambda <= opts.lambda_max {
-            let Some((l, c)) = ch.factor(lambda) else {
+            let Some(dx) = step(lambda) else {
                 lambda *= 10.0;
                 continue;
             };
-            let Some(dx) = Chain::solve(&l, &c, &ch.g) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let candidate: Vec<NodeState> = nodes.iter().zip(&dx).map(|(x, d)| x.retract(&(-d))).collect();
+            let candidate: Vec<NodeState> = nodes.iter().zip(&dx).map(|(x, d)| x.retract(d)).collect();
             let new_cost = total_cost(&candidate, factors)?;
             if new_cost.is_finite() && new_cost <= cost {
                 let decrease = cost - new_cost;
                 nodes.copy_from_slice(&candidate);
                 step_small = dx.iter().map(|d| d.amax()).fold(0.0, f64::max) < 1e-12;
-                converged = decrease <= opts.absolute_tol || decrease <= opts.relative_tol * cost || step_small;
-                cost = new_cost;
-                lambda = (lambda / 10.0).max(1e-16);
-                accepted = true;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !accepted {
-            converged = true;
-        }
-        if converged || step_small {
-            break;
-        }
-    }
-    Ok(LmReport { iterations, initial_cost, final_cost: cost, converged })
-}
-
-/// Optimise `nodes` in place.
-pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -> Result<LmReport, FgoError> {
-    if nodes.iter().any(|x| !x.is_finite()) {
-        return Err(FgoError::Input("initial node state contains NaN/inf".into()));
-    }
-    if is_chain(nodes.len(), factors) {
-        return solve_lm_chain(nodes, factors, opts);
-    }
-    let sys = System::new(nodes.len(), factors)?;
-    let mut values = vec![0.0; sys.pattern.nnz()];
-    let mut g = DVector::zeros(15 * sys.n);
-    let mut chol: Option<CscCholesky<f64>> = None;
-    let initial_cost = total_cost(nodes, factors)?;
-    let mut cost = initial_cost;
-    let mut lambda = opts.lambda_initial;
-    let mut converged = false;
-    let mut iterations = 0;
-    while iterations < opts.max_iterations {
-        iterations += 1;
-        sys.fill(nodes, factors, &mut values, &mut g)?;
-        let mut accepted = false;
-        let mut step_small = false;
-        while lambda <= opts.lambda_max {
-            let hd = sys.matrix(&values, lambda);
-            let ok = match chol.as_mut() {
-                Some(c) => c.refactor(hd.values()).is_ok(),
-                None => match CscCholesky::factor(&hd) {
-                    Ok(c) => {
-                        chol = Some(c);
-                        true
-                    }
-                    Err(_) => false,
-                },
-            };
-            let Some(c) = chol.as_ref().filter(|_| ok) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let dx = -c.solve(&g);
-            let dx = dx.column(0);
-            let candidate: Vec<NodeState> =
-                nodes.iter().enumerate().map(|(i, x)| x.retract(&Tangent::from_iterator(dx.rows(15 * i, 15).iter().copied()))).collect();
-            let new_cost = total_cost(&candidate, factors)?;
-            if new_cost.is_finite() && new_cost <= cost {
-                let decrease = cost - new_cost;
-                nodes.copy_from_slice(&candidate);
-                step_small = dx.amax() < 1e-12;
                 converged = decrease <= opts.absolute_tol || decrease <= opts.relative_tol * cost || step_small;
                 cost = new_cost;
                 lambda = (lambda / 10.0).max(1e-16);
@@ -372,6 +313,60 @@ pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -
         }
     }
     Ok(LmReport { iterations, initial_cost, final_cost: cost, converged })
+}
+
+/// Optimise `nodes` in place.
+pub fn solve_lm(nodes: &mut [NodeState], factors: &[Factor], opts: &LmOptions) -> Result<LmReport, FgoError> {
+    if nodes.iter().any(|x| !x.is_finite()) {
+        return Err(FgoError::Input("initial node state contains NaN/inf".into()));
+    }
+    if is_chain(nodes.len(), factors) {
+        // Block-tridiagonal normal equations: a block Cholesky along the chain.
+        let ch = std::cell::RefCell::new(Chain::new(nodes.len()));
+        return levenberg_marquardt(
+            nodes,
+            factors,
+            opts,
+            |nodes| ch.borrow_mut().fill(nodes, factors),
+            |lambda| {
+                let ch = ch.borrow();
+                let (l, c) = ch.factor(lambda)?;
+                Some(Chain::solve(&l, &c, &ch.g)?.iter().map(|d| -d).collect())
+            },
+        );
+    }
+    // General sparse normal equations: one symbolic Cholesky, refactored numerically per step.
+    let sys = System::new(nodes.len(), factors)?;
+    let n = nodes.len();
+    let state = std::cell::RefCell::new((vec![0.0; sys.pattern.nnz()], DVector::zeros(15 * sys.n)));
+    let mut chol: Option<CscCholesky<f64>> = None;
+    levenberg_marquardt(
+        nodes,
+        factors,
+        opts,
+        |nodes| {
+            let (values, g) = &mut *state.borrow_mut();
+            sys.fill(nodes, factors, values, g)
+        },
+        |lambda| {
+            let (values, g) = &*state.borrow();
+            let hd = sys.matrix(values, lambda);
+            let ok = match chol.as_mut() {
+                Some(c) => c.refactor(hd.values()).is_ok(),
+                None => match CscCholesky::factor(&hd) {
+                    Ok(c) => {
+                        chol = Some(c);
+                        true
+                    }
+                    Err(_) => false,
+                },
+            };
+            let c = chol.as_ref().filter(|_| ok)?;
+            let dx = -c.solve(g);
+            let dx = dx.column(0);
+            Some((0..n).map(|i| Tangent::from_iterator(dx.rows(15 * i, 15).iter().copied())).collect())
+        },
+    )
 }
 
 /// Marginal covariance (15x15) of node `k` given all factors, at the current estimate.
