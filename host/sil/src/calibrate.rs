@@ -1,0 +1,720 @@
+//! `subnav calibrate`: record a calibration sequence from a (simulated) sensor head, estimate its
+//! calibrations from the raw samples, write them to the head over the downlink (`SetRecord`),
+//! read them back (`ReadRecord`) and check they are what was sent.
+//!
+//! The sequence ([`Procedure::standard`]) runs on a rig at a known place, time and depth: the
+//! head held level, turned a full circle about each body axis at 30 deg/s, held still in six
+//! positions (each axis down and up), then spun a full circle about the vertical at 3 deg/s
+//! under the sky. The estimators use only what a real procedure has: the raw samples the head
+//! streams, the rig's commanded motion, the sun from the ephemeris and the sky's polarization
+//! model (`subnav_base::sky`), never the simulator's errors.
+//!
+//! - IMU (six-position static + rotations): each static position gives the mean specific force
+//!   `raw = K f_body + b` with `f_body` known from the rig's attitude; each turn gives the mean
+//!   rate `raw = K_g w_body + b_g`. Both are linear least squares (per output axis). The body
+//!   from raw correction `K^-1` is factored `R U` (QR; `R` the mounting rotation, `U` upper
+//!   triangular with a positive diagonal), the form of `ImuCalibration`; the gyro's `U_g` is
+//!   `R^T K_g^-1` (its lower triangle, zero up to noise, is dropped).
+//! - Polarization (sky spin): per sample the sky model gives the angle of polarization `chi` of
+//!   the light each unit sees (it depends on the geometry only: the water's turbidity changes
+//!   the intensity and the degree of polarization, not the angle). Channel `k` reads
+//!   `o_k + g_k I + P (B_k cos 2chi + C_k sin 2chi)` with the intensity `I` and polarized
+//!   intensity `P` of each sample unknown: alternating least squares over the samples' (I, P)
+//!   and the channels' (o, g, B, C); then `th_k = atan2(C_k, B_k) / 2`, `eta_k = |(B, C)| / g_k`.
+//!   Not observable from the sky, and harmless to the angle: a common scale of the gains (set to
+//!   a mean gain of nominal), of the polarized part (set to the best channel at the nominal
+//!   extinction ratio), an offset along the gains (set to a mean offset of nominal; a dark
+//!   frame would find it) and a part of the gains added to the polarized responses (`B - a g`,
+//!   `C - b g`: which response is "unpolarized" needs the DoLP, which the sky model does not
+//!   know without the water; set so that the polarized responses sum to zero over the
+//!   channels, as for ideal 0/45/90/135 deg polarizers). Each moves only S0 and the DoLP, not
+//!   the angle, so the fitted polarizer angles and extinction ratios are not the unit's own
+//!   but give its angle of polarization ([`recovery_errors`] measures that).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use nalgebra::{Matrix2, Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector2, Vector3, Vector4};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use subnav_base::sky::{self, Field, Water};
+use subnav_base::trajectory::{RigMotion, RigStep, Trajectory};
+use subnav_core::head;
+use subnav_wire::{
+    Command, Downlink, ImuCalibration, ImuSample, PolarizationCalibration, PolarizationSample, RawSample, Record, RecordKey, Uplink,
+};
+
+use crate::chips::w25q::SharedFlash;
+use crate::head::{Scenario, SimHead};
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+/// Depth of the rig, m.
+pub const RIG_DEPTH_M: f64 = 3.0;
+const TURN_RATE_RADPS: f64 = 30.0 * DEG;
+const SPIN_RATE_RADPS: f64 = 3.0 * DEG;
+const STATIC_S: f64 = 8.0;
+/// Samples this close to a phase's ends are not used (the rig settling; the sensors' filters).
+const SETTLE_S: f64 = 0.5;
+
+/// What the rig does in one phase of the sequence.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PhaseKind {
+    /// Not used by the estimators (pre-roll).
+    Idle,
+    /// Held still: the body specific force is known.
+    Static { f_body_mps2: Vector3<f64> },
+    /// Turning at a known body rate.
+    Turn { rate_body_radps: Vector3<f64> },
+    /// The slow spin about the vertical under the sky.
+    SkySpin,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Phase {
+    pub t0_s: f64,
+    pub t1_s: f64,
+    pub kind: PhaseKind,
+}
+
+impl Phase {
+    fn contains(&self, t_us: u64) -> bool {
+        let t = t_us as f64 * 1e-6;
+        t >= self.t0_s + SETTLE_S && t <= self.t1_s - SETTLE_S
+    }
+}
+
+/// A calibration sequence: the rig's commanded motion and what each phase is for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Procedure {
+    pub motion: RigMotion,
+    pub phases: Vec<Phase>,
+}
+
+impl Procedure {
+    /// The sequence of the module doc (242 s).
+    pub fn standard() -> Self {
+        let mut motion = RigMotion { depth_m: RIG_DEPTH_M, heading0_rad: 0.0, steps: Vec::new() };
+        let mut marks = Vec::new();
+        let (x, y, z) = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]);
+        let mut push = |duration_s: f64, axis_body: [f64; 3], rate_radps: f64, use_it: u8| {
+            motion.steps.push(RigStep { duration_s, axis_body, rate_radps });
+            marks.push(use_it);
+        };
+        const IDLE: u8 = 0;
+        const STILL: u8 = 1;
+        const TURN: u8 = 2;
+        const SPIN: u8 = 3;
+        let quarter = 90.0 * DEG / TURN_RATE_RADPS;
+        push(2.0, z, 0.0, IDLE);
+        push(10.0, z, 0.0, STILL);
+        push(4.0 * quarter, z, TURN_RATE_RADPS, TURN);
+        push(4.0 * quarter, z, -TURN_RATE_RADPS, TURN);
+        push(STATIC_S, z, 0.0, STILL);
+        for _ in 0..4 {
+            push(quarter, x, TURN_RATE_RADPS, TURN);
+            push(STATIC_S, z, 0.0, STILL);
+        }
+        push(quarter, y, TURN_RATE_RADPS, TURN);
+        push(STATIC_S, z, 0.0, STILL);
+        push(2.0 * quarter, y, TURN_RATE_RADPS, TURN);
+        push(STATIC_S, z, 0.0, STILL);
+        push(quarter, y, TURN_RATE_RADPS, TURN);
+        push(4.0, z, 0.0, STILL);
+        push(360.0 * DEG / SPIN_RATE_RADPS, z, SPIN_RATE_RADPS, SPIN);
+        push(2.0, z, 0.0, IDLE);
+        let traj = Trajectory::rig(&motion);
+        let mut t = 0.0;
+        let phases = motion
+            .steps
+            .iter()
+            .zip(marks)
+            .map(|(s, m)| {
+                let (t0, t1) = (t, t + s.duration_s);
+                t = t1;
+                let kind = match m {
+                    STILL => PhaseKind::Static { f_body_mps2: traj.at(0.5 * (t0 + t1)).specific_force_mps2 },
+                    TURN => PhaseKind::Turn { rate_body_radps: Vector3::from(s.axis_body) * s.rate_radps },
+                    SPIN => PhaseKind::SkySpin,
+                    _ => PhaseKind::Idle,
+                };
+                Phase { t0_s: t0, t1_s: t1, kind }
+            })
+            .collect();
+        Procedure { motion, phases }
+    }
+
+    pub fn duration_s(&self) -> f64 {
+        self.motion.duration_s()
+    }
+
+    /// The scenario of a calibration session of the head built with `build_seed` (None: an
+    /// ideal head), power-up `run_seed`, at the default scenario's place and time, at
+    /// [`RIG_DEPTH_M`]: the rig, no DVL, no fixes, no camera.
+    pub fn scenario(&self, build_seed: Option<u64>, run_seed: u64) -> Scenario {
+        Scenario {
+            seed: run_seed,
+            duration_s: self.duration_s(),
+            position_fixes: None,
+            dvl: None,
+            camera: None,
+            build_seed,
+            rig: Some(self.motion.clone()),
+            ..Scenario::default()
+        }
+    }
+}
+
+/// The raw samples of a calibration session.
+#[derive(Debug, Clone, Default)]
+pub struct Recording {
+    pub imu: Vec<ImuSample>,
+    pub polarization: Vec<PolarizationSample>,
+    pub boot_seen: bool,
+}
+
+impl Recording {
+    pub fn from_messages(msgs: &[Uplink]) -> Self {
+        let mut r = Recording::default();
+        for m in msgs {
+            match m {
+                Uplink::Raw(RawSample::Imu(s)) => r.imu.push(*s),
+                Uplink::Raw(RawSample::Polarization(s)) => r.polarization.push(*s),
+                Uplink::Boot(_) => r.boot_seen = true,
+                _ => {}
+            }
+        }
+        r
+    }
+}
+
+/// Least squares `A x = b` by the normal equations (small, well-conditioned systems).
+fn lsq4(rows: &[(Vector4<f64>, f64)]) -> Option<Vector4<f64>> {
+    let (mut ata, mut atb) = (Matrix4::zeros(), Vector4::zeros());
+    for (a, b) in rows {
+        ata += a * a.transpose();
+        atb += a * *b;
+    }
+    ata.cholesky().map(|c| c.solve(&atb))
+}
+
+/// `raw = K x + b` per output axis from `(x, mean raw)` pairs: `(K, b)`.
+fn affine_fit(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    let mut k = Matrix3::zeros();
+    let mut b = Vector3::zeros();
+    for r in 0..3 {
+        let rows: Vec<_> = pairs.iter().map(|(x, y)| (Vector4::new(x.x, x.y, x.z, 1.0), y[r])).collect();
+        let sol = lsq4(&rows)?;
+        k.set_row(r, &sol.fixed_rows::<3>(0).transpose());
+        b[r] = sol[3];
+    }
+    Some((k, b))
+}
+
+fn upper(m: &Matrix3<f64>) -> [f32; 6] {
+    [m[(0, 0)], m[(0, 1)], m[(0, 2)], m[(1, 1)], m[(1, 2)], m[(2, 2)]].map(|v| v as f32)
+}
+
+fn mean3(v: impl Iterator<Item = [f32; 3]>) -> Option<Vector3<f64>> {
+    let (mut s, mut n) = (Vector3::zeros(), 0usize);
+    for x in v {
+        s += Vector3::new(f64::from(x[0]), f64::from(x[1]), f64::from(x[2]));
+        n += 1;
+    }
+    (n >= 50).then(|| s / n as f64)
+}
+
+/// The IMU calibration from the static positions and turns of `proc`.
+pub fn fit_imu(rec: &Recording, proc: &Procedure) -> Result<ImuCalibration> {
+    let (mut acc, mut gyro) = (Vec::new(), Vec::new());
+    for (i, ph) in proc.phases.iter().enumerate() {
+        let samples = || rec.imu.iter().filter(|s| ph.contains(s.t_us));
+        match ph.kind {
+            PhaseKind::Static { f_body_mps2 } => {
+                let (Some(a), Some(g)) = (mean3(samples().map(|s| s.accel_mps2)), mean3(samples().map(|s| s.gyro_radps))) else {
+                    bail!("IMU calibration: too few IMU samples in static position {i} ({:.1}..{:.1} s)", ph.t0_s, ph.t1_s);
+                };
+                acc.push((f_body_mps2, a));
+                gyro.push((Vector3::zeros(), g));
+            }
+            PhaseKind::Turn { rate_body_radps } => {
+                let Some(g) = mean3(samples().map(|s| s.gyro_radps)) else {
+                    bail!("IMU calibration: too few IMU samples in turn {i} ({:.1}..{:.1} s)", ph.t0_s, ph.t1_s);
+                };
+                gyro.push((rate_body_radps, g));
+            }
+            _ => {}
+        }
+    }
+    let (ka, ba) = affine_fit(&acc).context("IMU calibration: the static positions do not determine the accelerometer")?;
+    let (kg, bg) = affine_fit(&gyro).context("IMU calibration: the turns do not determine the gyro")?;
+    let ka_inv = ka.try_inverse().context("IMU calibration: singular accelerometer matrix")?;
+    let kg_inv = kg.try_inverse().context("IMU calibration: singular gyro matrix")?;
+    // K_a^-1 = R U: QR with the signs chosen so that U's diagonal is positive.
+    let qr = ka_inv.qr();
+    let (mut q, mut u) = (qr.q(), qr.r());
+    for i in 0..3 {
+        if u[(i, i)] < 0.0 {
+            q.set_column(i, &(-q.column(i)));
+            u.set_row(i, &(-u.row(i)));
+        }
+    }
+    if q.determinant() < 0.0 {
+        bail!("IMU calibration: the accelerometer's axes are left-handed (the sequence does not match the head)");
+    }
+    let r = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(q));
+    let ug = q.transpose() * kg_inv;
+    let f = |v: Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
+    Ok(ImuCalibration {
+        gyro_bias_radps: f(bg),
+        accel_bias_mps2: f(ba),
+        gyro_correction: upper(&ug),
+        accel_correction: upper(&u),
+        body_from_imu_wxyz: [r.w, r.i, r.j, r.k].map(|v| v as f32),
+    })
+}
+
+/// Where and when a session ran (what the procedure knows of its setup).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Site {
+    pub start_utc_unix_us: i64,
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    pub depth_m: f64,
+}
+
+impl Site {
+    pub fn of(sc: &Scenario) -> Self {
+        Site {
+            start_utc_unix_us: sc.start_utc_unix_us,
+            lat_deg: sc.lat_deg,
+            lon_deg: sc.lon_deg,
+            depth_m: sc.rig.as_ref().map_or(RIG_DEPTH_M, |r| r.depth_m),
+        }
+    }
+}
+
+/// Angle of polarization (rad, in each unit's frame) the sky model predicts at `t_s` of the
+/// sequence for every unit.
+fn predicted_aop(site: &Site, traj: &Trajectory, t_s: f64) -> Vec<f64> {
+    let sc = Scenario { start_utc_unix_us: site.start_utc_unix_us, lat_deg: site.lat_deg, lon_deg: site.lon_deg, ..Scenario::default() };
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let field = Field::new(sc.sun_ned(t_s), Water::clear(), site.depth_m, &mut rng);
+    let r_nb = traj.at(t_s).att_nb.to_rotation_matrix();
+    let v3 = |x: [f32; 3]| Vector3::new(f64::from(x[0]), f64::from(x[1]), f64::from(x[2]));
+    head::polarization_units()
+        .iter()
+        .map(|u| match u {
+            Some(u) => {
+                let d = r_nb * v3(u.view_body);
+                let a = r_nb * v3(u.axis0_body);
+                let s = sky::stokes(&field.radiance(d), &a, &d.cross(&a));
+                0.5 * s[2].atan2(s[1])
+            }
+            None => 0.0,
+        })
+        .collect()
+}
+
+/// One unit's channels as the fit carries them: counts = o + g I + P (B cos 2chi + C sin 2chi).
+#[derive(Debug, Clone, Copy)]
+struct Channels {
+    o: [f64; 4],
+    g: [f64; 4],
+    b: [f64; 4],
+    c: [f64; 4],
+}
+
+fn eta_of(er: f64) -> f64 {
+    (er - 1.0) / (er + 1.0)
+}
+
+/// A unit's calibration from `(counts, chi)` samples.
+fn fit_unit(unit: u8, samples: &[([f64; 4], f64)]) -> Result<PolarizationCalibration> {
+    if samples.len() < 100 {
+        bail!("polarization unit {unit}: {} samples in the sky spin, at least 100 needed", samples.len());
+    }
+    let nominal = head::polarization_units()
+        .get(usize::from(unit))
+        .copied()
+        .flatten()
+        .with_context(|| format!("polarization unit {unit} is not on this head"))?;
+    let eta0 = eta_of(f64::from(head::POLARIZER_EXTINCTION_RATIO));
+    let mut ch = Channels { o: [0.0; 4], g: [0.0; 4], b: [0.0; 4], c: [0.0; 4] };
+    for (k, n) in nominal.channels.iter().enumerate() {
+        let th = 2.0 * f64::from(n.polarizer_rad);
+        ch.o[k] = f64::from(n.offset_counts);
+        ch.g[k] = f64::from(n.gain);
+        ch.b[k] = eta_of(f64::from(n.extinction_ratio)) * th.cos();
+        ch.c[k] = eta_of(f64::from(n.extinction_ratio)) * th.sin();
+    }
+    let trig: Vec<(f64, f64)> = samples.iter().map(|(_, chi)| ((2.0 * chi).cos(), (2.0 * chi).sin())).collect();
+    let mut ip = vec![(0.0, 0.0); samples.len()];
+    let mut rms = f64::INFINITY;
+    for _ in 0..400 {
+        // Each sample's intensity and polarized intensity, given the channels.
+        for (((y, _), (cs, sn)), out) in samples.iter().zip(&trig).zip(ip.iter_mut()) {
+            let (mut m, mut v) = (Matrix2::zeros(), Vector2::zeros());
+            for k in 0..4 {
+                let a = Vector2::new(ch.g[k], ch.b[k] * cs + ch.c[k] * sn);
+                m += a * a.transpose();
+                v += a * (y[k] - ch.o[k]);
+            }
+            if let Some(x) = m.try_inverse().map(|mi| mi * v) {
+                *out = (x[0], x[1]);
+            }
+        }
+        // Each channel, given the samples.
+        let mut sq = 0.0;
+        for k in 0..4 {
+            let rows: Vec<_> = samples
+                .iter()
+                .zip(&trig)
+                .zip(&ip)
+                .map(|(((y, _), (cs, sn)), (i, p))| (Vector4::new(1.0, *i, p * cs, p * sn), y[k]))
+                .collect();
+            let x = lsq4(&rows).with_context(|| format!("polarization unit {unit}: the sky spin does not determine channel {k}"))?;
+            (ch.o[k], ch.g[k], ch.b[k], ch.c[k]) = (x[0], x[1], x[2], x[3]);
+            sq += rows.iter().map(|(a, y)| (a.dot(&x) - y).powi(2)).sum::<f64>();
+        }
+        // The gauges (module doc): the polarized responses sum to zero over the channels (as
+        // for a unit with ideal 0/45/90/135 deg polarizers), mean gain nominal, best channel at
+        // the nominal extinction ratio, mean offset nominal.
+        let g_sum = ch.g.iter().sum::<f64>();
+        let (alpha, beta) = (ch.b.iter().sum::<f64>() / g_sum, ch.c.iter().sum::<f64>() / g_sum);
+        for k in 0..4 {
+            ch.b[k] -= alpha * ch.g[k];
+            ch.c[k] -= beta * ch.g[k];
+        }
+        let lambda = ch.g.iter().sum::<f64>() / 4.0 / f64::from(head::POLARIZATION_GAIN_COUNTS);
+        let eta_max = (0..4).map(|k| (ch.b[k].hypot(ch.c[k])) / ch.g[k]).fold(0.0, f64::max);
+        if !(lambda > 0.0 && eta_max > 0.0) {
+            bail!("polarization unit {unit}: the fit diverged (gain scale {lambda}, polarized part {eta_max})");
+        }
+        let mu = eta0 / eta_max;
+        let shift = (ch.o.iter().sum::<f64>() / 4.0 - f64::from(head::POLARIZATION_OFFSET_COUNTS)) / (ch.g.iter().sum::<f64>() / 4.0);
+        for k in 0..4 {
+            ch.o[k] -= shift * ch.g[k];
+            ch.g[k] /= lambda;
+            ch.b[k] *= mu / lambda;
+            ch.c[k] *= mu / lambda;
+        }
+        let new_rms = (sq / (4 * samples.len()) as f64).sqrt();
+        let done = (rms - new_rms).abs() < 1e-9 * new_rms.max(1.0);
+        rms = new_rms;
+        if done {
+            break;
+        }
+    }
+    if !(rms < 50.0) {
+        bail!("polarization unit {unit}: the channel model does not fit the sky spin (residual {rms:.1} counts RMS)");
+    }
+    let mut cal = PolarizationCalibration { unit, gain: [0.0; 4], offset_counts: [0.0; 4], polarizer_rad: [0.0; 4], extinction_ratio: [0.0; 4] };
+    for k in 0..4 {
+        let eta = ch.b[k].hypot(ch.c[k]) / ch.g[k];
+        let mut th = 0.5 * ch.c[k].atan2(ch.b[k]);
+        // The same axis as the nominal one, modulo 180 deg.
+        let nominal_rad = f64::from(nominal.channels[k].polarizer_rad);
+        th = nominal_rad + (th - nominal_rad + 0.5 * std::f64::consts::PI).rem_euclid(std::f64::consts::PI) - 0.5 * std::f64::consts::PI;
+        cal.gain[k] = ch.g[k] as f32;
+        cal.offset_counts[k] = ch.o[k] as f32;
+        cal.polarizer_rad[k] = th as f32;
+        cal.extinction_ratio[k] = ((1.0 + eta) / (1.0 - eta).max(1e-5)).min(1e5) as f32;
+    }
+    Ok(cal)
+}
+
+/// The calibration of every polarization unit from the sky spin of `proc` at `site`.
+pub fn fit_polarization(rec: &Recording, proc: &Procedure, site: &Site) -> Result<Vec<PolarizationCalibration>> {
+    let traj = Trajectory::rig(&proc.motion);
+    let spin: Vec<&Phase> = proc.phases.iter().filter(|p| p.kind == PhaseKind::SkySpin).collect();
+    let mut per_unit: Vec<Vec<([f64; 4], f64)>> = vec![Vec::new(); head::POLARIZATION_UNITS];
+    let mut chi_at: Option<(u64, Vec<f64>)> = None;
+    for s in rec.polarization.iter().filter(|s| spin.iter().any(|p| p.contains(s.t_us))) {
+        if chi_at.as_ref().is_none_or(|(t, _)| *t != s.t_us) {
+            chi_at = Some((s.t_us, predicted_aop(site, &traj, s.t_us as f64 * 1e-6)));
+        }
+        let (Some((_, chi)), Some(list)) = (chi_at.as_ref(), per_unit.get_mut(usize::from(s.unit))) else { continue };
+        if let Some(&c) = chi.get(usize::from(s.unit)) {
+            list.push((s.counts.map(f64::from), c));
+        }
+    }
+    per_unit.iter().enumerate().map(|(u, samples)| fit_unit(u as u8, samples)).collect()
+}
+
+/// Every record the procedure computes from a session's recording.
+pub fn fit_all(rec: &Recording, proc: &Procedure, site: &Site) -> Result<Vec<Record>> {
+    if !rec.boot_seen && rec.imu.is_empty() {
+        bail!("no head answered: the session's telemetry has no Boot message and no samples");
+    }
+    let mut out: Vec<Record> = fit_polarization(rec, proc, site)?.into_iter().map(Record::Polarization).collect();
+    out.push(Record::Imu(fit_imu(rec, proc)?));
+    Ok(out)
+}
+
+/// Which head a session runs on.
+#[derive(Debug, Clone)]
+pub enum Target {
+    /// The firmware's application core natively (software in the loop).
+    Native,
+    /// The QEMU board firmware.
+    Qemu { elf: PathBuf, timeout: Duration },
+}
+
+/// Run a session of `sc` on `head` and return its telemetry.
+pub fn run_session(target: &Target, sc: &Scenario, head: SimHead) -> Result<Vec<Uplink>> {
+    match target {
+        Target::Native => Ok(crate::sil::run_native_with_head(sc, head, true).messages),
+        Target::Qemu { elf, timeout } => {
+            use subnav_link::LinkEvent;
+            use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+            if !elf.is_file() {
+                bail!("firmware ELF {}: no such file (`cargo xtask build --board qemu` builds it)", elf.display());
+            }
+            let mut cfg = QemuConfig::new(elf);
+            cfg.run_ms = Some((sc.duration_s * 1000.0).round() as u64);
+            cfg.timeout = *timeout;
+            cfg.board_args = sc.board_args();
+            let mut msgs = Vec::new();
+            let (outcome, _) = run_with_bus(&cfg, Box::new(head), |e, _| {
+                if let QemuEvent::Link(LinkEvent::Message(m)) = e {
+                    msgs.push(m);
+                }
+            })
+            .with_context(|| format!("running {} under QEMU", elf.display()))?;
+            if outcome.timed_out {
+                bail!("the QEMU head ({}) did not finish its session within {} s", elf.display(), timeout.as_secs());
+            }
+            Ok(msgs)
+        }
+    }
+}
+
+/// Record the calibration sequence on the head whose store is `flash`.
+pub fn record(target: &Target, sc: &Scenario, flash: &SharedFlash) -> Result<Recording> {
+    let head = SimHead::new(sc).with_flash_chip(flash.clone());
+    let rec = Recording::from_messages(&run_session(target, sc, head)?);
+    if !rec.boot_seen {
+        bail!("no head answered: the calibration session's telemetry has no Boot message");
+    }
+    if rec.imu.is_empty() || rec.polarization.is_empty() {
+        bail!("the head streamed no raw samples (IMU {}, polarization {}): is its raw stream off?", rec.imu.len(), rec.polarization.len());
+    }
+    Ok(rec)
+}
+
+fn frame(seq: u16, command: Command) -> Result<Vec<u8>> {
+    let mut buf = [0u8; subnav_wire::MAX_DOWNLINK_FRAME];
+    Ok(subnav_wire::encode(&Downlink { seq, command }, &mut buf).context("encoding a downlink command")?.to_vec())
+}
+
+/// Write `records` to the head (one `SetRecord` each), read each back and check it is what was
+/// sent. Errors name the record and the head's reason.
+pub fn write_and_verify(target: &Target, sc_still: &Scenario, flash: &SharedFlash, records: &[Record]) -> Result<()> {
+    const FIRST_US: u64 = 500_000;
+    const STEP_US: u64 = 100_000;
+    let n = records.len() as u64;
+    let mut frames = Vec::new();
+    for (k, r) in records.iter().enumerate() {
+        frames.push((FIRST_US + k as u64 * STEP_US, frame(1 + k as u16, Command::SetRecord(*r))?));
+        frames.push((FIRST_US + (n + k as u64) * STEP_US, frame(1001 + k as u16, Command::ReadRecord(r.key()))?));
+    }
+    let mut sc = sc_still.clone();
+    sc.duration_s = (FIRST_US + 2 * n * STEP_US) as f64 * 1e-6 + 1.0;
+    let head = SimHead::build_with_commands(&sc, None, None, frames).with_flash_chip(flash.clone());
+    let msgs = run_session(target, &sc, head)?;
+    if !msgs.iter().any(|m| matches!(m, Uplink::Boot(_))) {
+        bail!("no head answered: the write session's telemetry has no Boot message");
+    }
+    let ack = |seq: u16| msgs.iter().find_map(|m| if let Uplink::Ack(a) = m { (a.seq == seq).then_some(a.result) } else { None });
+    for (k, r) in records.iter().enumerate() {
+        match ack(1 + k as u16) {
+            Some(Ok(())) => {}
+            Some(Err(e)) => bail!("the head refused the {}: {e}", r.key()),
+            None => bail!("the head did not acknowledge the {} (no answer to SetRecord)", r.key()),
+        }
+    }
+    for (k, r) in records.iter().enumerate() {
+        if let Some(Err(e)) = ack(1001 + k as u16) {
+            bail!("the head refused to read back the {}: {e}", r.key());
+        }
+        let key: RecordKey = r.key();
+        let back = msgs.iter().rev().find_map(|m| if let Uplink::Record(rep) = m { (rep.key == key).then_some(rep.stored) } else { None });
+        match back {
+            Some(Some(b)) if b == *r => {}
+            Some(Some(b)) => bail!("read-back of the {key} differs from what was written: wrote {r:?}, read {b:?}"),
+            Some(None) => bail!("read-back of the {key}: the head has no valid record stored"),
+            None => bail!("the head sent no read-back of the {key}"),
+        }
+    }
+    Ok(())
+}
+
+/// What a calibration did.
+#[derive(Debug, Clone)]
+pub struct Calibrated {
+    pub records: Vec<Record>,
+    pub recording: Recording,
+}
+
+/// The whole procedure on one head: record, fit, write, verify. `run_seed` is the session's
+/// power-up (its turn-on biases and noise).
+pub fn calibrate(target: &Target, build_seed: Option<u64>, run_seed: u64, flash: &SharedFlash) -> Result<Calibrated> {
+    let proc = Procedure::standard();
+    let sc = proc.scenario(build_seed, run_seed);
+    let recording = record(target, &sc, flash)?;
+    let records = fit_all(&recording, &proc, &Site::of(&sc))?;
+    let still = Scenario { rig: Some(RigMotion { steps: Vec::new(), ..proc.motion.clone() }), ..sc };
+    write_and_verify(target, &still, flash, &records)?;
+    Ok(Calibrated { records, recording })
+}
+
+/// A flash image file as a shared chip (created erased when missing).
+pub fn flash_file(path: &Path) -> Result<SharedFlash> {
+    let chip = crate::chips::w25q::W25qModel::with_file(path)?;
+    Ok(SharedFlash(std::sync::Arc::new(std::sync::Mutex::new(chip))))
+}
+
+/// How far the records are from a mis-built head's true errors (evaluation only).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct RecoveryErrors {
+    pub max_gain_rel: f64,
+    /// Largest angle-of-polarization error of a calibrated unit on its true channels (noise
+    /// free, DoLP 0.3, every 5 deg of angle), deg.
+    pub max_aop_deg: f64,
+    /// Angle between the calibrated and the true mounting rotation, deg.
+    pub mounting_deg: f64,
+    pub max_accel_scale_rel: f64,
+}
+
+/// The channel model's counts (f64) for Stokes `s` (counts of S0, S1, S2).
+pub fn model_counts(channels: &[subnav_core::compass::ChannelCal; 4], s: [f64; 3]) -> [f64; 4] {
+    channels.map(|c| {
+        let eta = eta_of(f64::from(c.extinction_ratio));
+        let th = 2.0 * f64::from(c.polarizer_rad);
+        f64::from(c.offset_counts) + f64::from(c.gain) * 0.5 * (s[0] + eta * (s[1] * th.cos() + s[2] * th.sin()))
+    })
+}
+
+/// Largest angle-of-polarization error (deg) of calibration `p` applied to counts from the
+/// true channels `truth` (S0 20,000 counts, DoLP 0.3, angles every 5 deg; no noise, no
+/// rounding), with the compass's least-squares Stokes inverse in f64.
+pub fn max_aop_error_deg(p: &PolarizationCalibration, truth: &[subnav_core::compass::ChannelCal; 4]) -> f64 {
+    let rows: Vec<Vector3<f64>> = (0..4)
+        .map(|k| {
+            let eta = eta_of(f64::from(p.extinction_ratio[k]));
+            let th = 2.0 * f64::from(p.polarizer_rad[k]);
+            Vector3::new(0.5, 0.5 * eta * th.cos(), 0.5 * eta * th.sin()) * f64::from(p.gain[k])
+        })
+        .collect();
+    let ata: Matrix3<f64> = rows.iter().map(|r| r * r.transpose()).sum();
+    let Some(inv) = ata.try_inverse() else { return f64::INFINITY };
+    (0..36)
+        .map(|i| {
+            let chi = (i as f64 * 5.0 - 90.0).to_radians();
+            let y = model_counts(truth, [20_000.0, 6_000.0 * (2.0 * chi).cos(), 6_000.0 * (2.0 * chi).sin()]);
+            let atb: Vector3<f64> = rows.iter().enumerate().map(|(k, r)| r * (y[k] - f64::from(p.offset_counts[k]))).sum();
+            let est = inv * atb;
+            let d = 0.5 * est[2].atan2(est[1]) - chi;
+            ((d + 0.5 * std::f64::consts::PI).rem_euclid(std::f64::consts::PI) - 0.5 * std::f64::consts::PI).abs().to_degrees()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Compare `records` with the true build of `build_seed`. Gains are compared after removing the
+/// unobservable common scale (module doc).
+pub fn recovery_errors(records: &[Record], build_seed: u64) -> RecoveryErrors {
+    let b = crate::manufacturing::BuildErrors::draw(build_seed);
+    let mut e = RecoveryErrors::default();
+    for r in records {
+        match r {
+            Record::Polarization(p) => {
+                let Some(truth) = b.polarization.get(usize::from(p.unit)) else { continue };
+                let mean_true = truth.iter().map(|c| f64::from(c.gain)).sum::<f64>() / 4.0;
+                let mean_fit = p.gain.iter().map(|g| f64::from(*g)).sum::<f64>() / 4.0;
+                for (k, t) in truth.iter().enumerate() {
+                    let g = f64::from(p.gain[k]) / mean_fit;
+                    e.max_gain_rel = e.max_gain_rel.max((g / (f64::from(t.gain) / mean_true) - 1.0).abs());
+                }
+                e.max_aop_deg = e.max_aop_deg.max(max_aop_error_deg(p, truth));
+            }
+            Record::Imu(c) => {
+                let [w, x, y, z] = c.body_from_imu_wxyz.map(f64::from);
+                let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+                let truth = UnitQuaternion::from_rotation_matrix(&b.imu_from_body.inverse());
+                e.mounting_deg = q.angle_to(&truth).to_degrees();
+                let u = c.accel_correction;
+                for (k, d) in [u[0], u[3], u[5]].iter().enumerate() {
+                    e.max_accel_scale_rel = e.max_accel_scale_rel.max((1.0 / f64::from(*d) / b.accel.n[(k, k)] - 1.0).abs());
+                }
+            }
+            _ => {}
+        }
+    }
+    e
+}
+
+#[cfg(test)]
+mod tests;
+
+/// One head's figures in a dive.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct HeadFigures {
+    /// Compass heading fixes against the true heading.
+    pub compass_rmse_deg: f64,
+    pub compass_fixes: usize,
+    /// The navigation solution's heading (converged samples).
+    pub heading_rmse_deg: f64,
+    pub horizontal_rms_err_m: f64,
+}
+
+impl HeadFigures {
+    fn of(r: &crate::dive::DiveResult) -> Self {
+        HeadFigures {
+            compass_rmse_deg: r.compass_rmse_deg,
+            compass_fixes: r.compass_fixes,
+            heading_rmse_deg: r.heading_rmse_deg,
+            horizontal_rms_err_m: r.horizontal_rms_err_m,
+        }
+    }
+}
+
+/// A mis-built head uncalibrated, calibrated by [`calibrate`] and the ideal head, in the same dive.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Comparison {
+    pub build_seed: u64,
+    pub uncalibrated: HeadFigures,
+    pub calibrated: HeadFigures,
+    pub ideal: HeadFigures,
+    pub recovery: RecoveryErrors,
+}
+
+/// Power-up seed of a head's calibration session (not the dive's: another power-up, other
+/// turn-on biases).
+pub fn session_seed(build_seed: u64) -> u64 {
+    build_seed.wrapping_add(1_000_000)
+}
+
+/// Run `dive` (its seed replaced by `build_seed`, so the three heads see the same dive, noise
+/// and turn-on biases) natively on the head built with `build_seed` uncalibrated, on the same
+/// head after [`calibrate`] and on the ideal head.
+pub fn compare(build_seed: u64, dive: &Scenario) -> Result<Comparison> {
+    if dive.camera.is_some() {
+        bail!("the comparison dive must have no camera (the map in the loop is not run)");
+    }
+    let ideal_sc = Scenario { seed: build_seed, build_seed: None, rig: None, ..dive.clone() };
+    let built_sc = Scenario { build_seed: Some(build_seed), ..ideal_sc.clone() };
+    let ideal = crate::sil::run_dive_native(&ideal_sc);
+    let uncalibrated = crate::sil::run_dive_native(&built_sc);
+    let flash = SharedFlash::default();
+    let cal = calibrate(&Target::Native, Some(build_seed), session_seed(build_seed), &flash)?;
+    let calibrated = crate::sil::run_dive_native_with_head(&built_sc, SimHead::new(&built_sc).with_flash_chip(flash));
+    Ok(Comparison {
+        build_seed,
+        uncalibrated: HeadFigures::of(&uncalibrated),
+        calibrated: HeadFigures::of(&calibrated),
+        ideal: HeadFigures::of(&ideal),
+        recovery: recovery_errors(&cal.records, build_seed),
+    })
+}
