@@ -16,10 +16,11 @@ fn calibrated_heads_come_near_the_ideal_head() {
         eprintln!("{c:?}");
         let r = c.recovery;
         assert!(r.max_aop_deg < 0.05 && r.max_gain_rel < 0.005 && r.mounting_deg < 0.05, "seed {seed}: {r:?}");
-        let (u, k, i) = (c.uncalibrated.compass_rmse_deg, c.calibrated.compass_rmse_deg, c.ideal.compass_rmse_deg);
-        assert!(c.calibrated.compass_fixes > 500, "seed {seed}: {c:?}");
-        assert!(k < 0.5 * u, "seed {seed}: calibrated {k} vs uncalibrated {u}");
-        assert!(k < 1.5 * i, "seed {seed}: calibrated {k} vs ideal {i}");
+        let (u, k, i) = (c.uncalibrated, c.calibrated, c.ideal);
+        assert!(k.compass_fixes > 500, "seed {seed}: {c:?}");
+        // Uncalibrated: no fix at all, or fixes far off.
+        assert!(u.compass_fixes == 0 || k.compass_median_abs_deg < 0.5 * u.compass_median_abs_deg, "seed {seed}: {c:?}");
+        assert!(k.compass_rmse_inliers_deg < 1.5 * i.compass_rmse_inliers_deg, "seed {seed}: {c:?}");
     }
 }
 
@@ -28,6 +29,7 @@ fn the_next_boot_uses_the_written_calibration_and_bad_records_are_refused_by_nam
     let flash = SharedFlash::default();
     let cal = calibrate::calibrate(&Target::Native, Some(5), 77, &flash).unwrap();
     assert_eq!(cal.records.len(), 5);
+    eprintln!("{:?}", calibrate::recovery_errors(&cal.records, 5));
     let sc = Scenario { duration_s: 1.0, build_seed: Some(5), ..Scenario::default() };
     let run = subnav_sil::sil::run_native_with_head(&sc, subnav_sil::SimHead::new(&sc).with_flash_chip(flash.clone()), true);
     let boot = run.messages.iter().find_map(|m| if let Uplink::Boot(b) = m { Some(b.calibration) } else { None }).unwrap();

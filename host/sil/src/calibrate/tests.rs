@@ -97,3 +97,32 @@ fn too_few_samples_and_no_head_are_named() {
     let err = run_session(&missing, &sc, SimHead::new(&sc)).unwrap_err().to_string();
     assert!(err.contains("/nonexistent/subnav-qemu.elf"), "{err}");
 }
+
+#[test]
+#[ignore]
+fn debug_chi_mismatch() {
+    let proc = Procedure::standard();
+    let sc = proc.scenario(Some(5), 77);
+    let flash = SharedFlash::default();
+    let rec = record(&Target::Native, &sc, &flash).unwrap();
+    let b = crate::manufacturing::BuildErrors::draw(5);
+    let site = Site::of(&sc);
+    let traj = Trajectory::rig(&proc.motion);
+    let spin: Vec<&Phase> = proc.phases.iter().filter(|p| p.kind == PhaseKind::SkyHold).collect();
+    for s in rec.polarization.iter().filter(|s| s.unit == 0 && spin.iter().any(|p| p.contains(s.t_us))).step_by(40) {
+        let truth = b.polarization[0];
+        let p = PolarizationCalibration {
+            unit: 0,
+            gain: truth.map(|c| c.gain),
+            offset_counts: truth.map(|c| c.offset_counts),
+            polarizer_rad: truth.map(|c| c.polarizer_rad),
+            extinction_ratio: truth.map(|c| c.extinction_ratio),
+        };
+        let m = subnav_firmware::calibration::unit_model(&p).unwrap();
+        let o = m.observe(&s.counts, 1e-3, 0.0);
+        let chi = predicted_aop(&site, &traj, s.t_us as f64 * 1e-6)[0];
+        if let Ok(o) = o {
+            eprintln!("t {:.2} chi {:.3} measured {:.3} dolp {:.3} s0 {:.0} diff {:.3}", s.t_us as f64 * 1e-6, chi.to_degrees(), f64::from(o.aop_rad).to_degrees(), o.dolp, o.s0, (f64::from(o.aop_rad) - chi).to_degrees());
+        }
+    }
+}
