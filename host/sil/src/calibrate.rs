@@ -404,7 +404,11 @@ fn closed_form(samples: &[([f64; 4], f64)]) -> Option<Channels> {
     let eig = cov.symmetric_eigen();
     let mut order = [0usize, 1, 2, 3];
     order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let q = nalgebra::Matrix4x3::from_columns(&[eig.eigenvectors.column(order[1]), eig.eigenvectors.column(order[2]), eig.eigenvectors.column(order[3])]);
+    let q = nalgebra::Matrix4x3::from_columns(&[
+        eig.eigenvectors.column(order[1]),
+        eig.eigenvectors.column(order[2]),
+        eig.eigenvectors.column(order[3]),
+    ]);
     let mut m = nalgebra::SMatrix::<f64, 8, 8>::zeros();
     for (y, chi) in samples {
         let z = q.transpose() * (Vector4::from(*y) - mean);
@@ -518,7 +522,8 @@ fn fit_unit(unit: u8, samples: &[([f64; 4], f64)]) -> Result<PolarizationCalibra
     if !(rms < 50.0) {
         bail!("polarization unit {unit}: the channel model does not fit the sky spin (residual {rms:.1} counts RMS)");
     }
-    let mut cal = PolarizationCalibration { unit, gain: [0.0; 4], offset_counts: [0.0; 4], polarizer_rad: [0.0; 4], extinction_ratio: [0.0; 4] };
+    let mut cal =
+        PolarizationCalibration { unit, gain: [0.0; 4], offset_counts: [0.0; 4], polarizer_rad: [0.0; 4], extinction_ratio: [0.0; 4] };
     for k in 0..4 {
         let eta = ch.b[k].hypot(ch.c[k]) / ch.g[k];
         let mut th = 0.5 * ch.c[k].atan2(ch.b[k]);
@@ -675,16 +680,21 @@ pub struct Calibrated {
     pub recording: Recording,
 }
 
-/// The whole procedure on one head: record, fit, write, verify. `run_seed` is the session's
-/// power-up (its turn-on biases and noise).
+/// The whole procedure on one head: record, fit, write, verify. `run_seed` is the first
+/// session's power-up (its turn-on biases and noise); the IMU part runs in [`IMU_POWER_UPS`].
 pub fn calibrate(target: &Target, build_seed: Option<u64>, run_seed: u64, flash: &SharedFlash) -> Result<Calibrated> {
+    calibrate_with(target, build_seed, run_seed, IMU_POWER_UPS, flash)
+}
+
+/// As [`calibrate`] with the IMU part in `power_ups` power-ups (at least 1).
+pub fn calibrate_with(target: &Target, build_seed: Option<u64>, run_seed: u64, power_ups: u64, flash: &SharedFlash) -> Result<Calibrated> {
     let proc = Procedure::standard();
     let sc = proc.scenario(build_seed, run_seed);
     let recording = record(target, &sc, flash)?;
     let mut records: Vec<Record> = fit_polarization(&recording, &proc, &Site::of(&sc))?.into_iter().map(Record::Polarization).collect();
     let mut imu = vec![imu_affine(&recording, &proc)?];
     let imu_proc = Procedure::imu_only();
-    for k in 1..IMU_POWER_UPS {
+    for k in 1..power_ups.max(1) {
         let sc = imu_proc.scenario(build_seed, run_seed.wrapping_add(7919 * k));
         imu.push(imu_affine(&record(target, &sc, flash)?, &imu_proc)?);
     }

@@ -44,4 +44,3 @@ fn the_next_boot_uses_the_written_calibration_and_bad_records_are_refused_by_nam
     let err = calibrate::write_and_verify(&Target::Native, &still, &flash, &[Record::Polarization(p)]).unwrap_err().to_string();
     assert!(err.contains("refused the polarization unit 0 calibration"), "{err}");
 }
-

@@ -32,7 +32,12 @@ fn imu_fit_recovers_the_injected_build() {
         let k = subnav_firmware::calibration::ImuCorrection::new(&cal).unwrap();
         let (w, f) = (Vector3::new(0.3, -0.2, 0.5), Vector3::new(1.0, -2.0, -9.0));
         let (g, a) = b.sense(&w, &f);
-        let raw = ImuSample { t_us: 0, gyro_radps: [g.x, g.y, g.z].map(|v| v as f32), accel_mps2: [a.x, a.y, a.z].map(|v| v as f32), temp_c: 0.0 };
+        let raw = ImuSample {
+            t_us: 0,
+            gyro_radps: [g.x, g.y, g.z].map(|v| v as f32),
+            accel_mps2: [a.x, a.y, a.z].map(|v| v as f32),
+            temp_c: 0.0,
+        };
         let out = k.apply(&raw);
         for i in 0..3 {
             assert!((f64::from(out.gyro_radps[i]) - w[i]).abs() < 1e-5, "gyro {out:?}");
@@ -122,7 +127,15 @@ fn debug_chi_mismatch() {
         let o = m.observe(&s.counts, 1e-3, 0.0);
         let chi = predicted_aop(&site, &traj, s.t_us as f64 * 1e-6)[0];
         if let Ok(o) = o {
-            eprintln!("t {:.2} chi {:.3} measured {:.3} dolp {:.3} s0 {:.0} diff {:.3}", s.t_us as f64 * 1e-6, chi.to_degrees(), f64::from(o.aop_rad).to_degrees(), o.dolp, o.s0, (f64::from(o.aop_rad) - chi).to_degrees());
+            eprintln!(
+                "t {:.2} chi {:.3} measured {:.3} dolp {:.3} s0 {:.0} diff {:.3}",
+                s.t_us as f64 * 1e-6,
+                chi.to_degrees(),
+                f64::from(o.aop_rad).to_degrees(),
+                o.dolp,
+                o.s0,
+                (f64::from(o.aop_rad) - chi).to_degrees()
+            );
         }
     }
 }
