@@ -30,8 +30,8 @@
 //!   extinction ratio), an offset along the gains (set to a mean offset of nominal; a dark
 //!   frame would find it) and a part of the gains added to the polarized responses (`B - a g`,
 //!   `C - b g`: which response is "unpolarized" needs the DoLP, which the sky model does not
-//!   know without the water; set so that the polarized responses sum to zero over the
-//!   channels, as for ideal 0/45/90/135 deg polarizers). Each moves only S0 and the DoLP, not
+//!   know without the water; set so that the channels' extinction ratios come out as nearly
+//!   equal as they can, [`circle_centre`]). Each moves only S0 and the DoLP, not
 //!   the angle, so the fitted polarizer angles and extinction ratios are not the unit's own
 //!   but give its angle of polarization ([`recovery_errors`] measures that).
 
@@ -432,6 +432,27 @@ fn closed_form(samples: &[([f64; 4], f64)]) -> Option<Channels> {
     Some(Channels { o: o.into(), g: (g * sign).into(), b: bb.into(), c: cc.into() })
 }
 
+/// The centre of the circle nearest the points `(B_k, C_k) / g_k` (Kasa's algebraic fit: `x^2
+/// + y^2 + D x + E y + F = 0` by least squares). For channels with equal extinction ratios the
+/// points lie on a circle about the true zero of polarization, so removing the centre picks
+/// the gauge (`B - a g`, `C - b g`, module doc) that gives the most nearly equal ratios.
+fn circle_centre(ch: &Channels) -> (f64, f64) {
+    let (mut m, mut v) = (Matrix3::zeros(), Vector3::zeros());
+    for k in 0..4 {
+        let (x, y) = (ch.b[k] / ch.g[k], ch.c[k] / ch.g[k]);
+        let a = Vector3::new(x, y, 1.0);
+        m += a * a.transpose();
+        v -= a * (x * x + y * y);
+    }
+    match m.try_inverse() {
+        Some(mi) => {
+            let d = mi * v;
+            (-0.5 * d[0], -0.5 * d[1])
+        }
+        None => (0.0, 0.0),
+    }
+}
+
 /// A unit's calibration from `(counts, chi)` samples.
 fn fit_unit(unit: u8, samples: &[([f64; 4], f64)]) -> Result<PolarizationCalibration> {
     if samples.len() < 100 {
@@ -490,11 +511,10 @@ fn fit_unit(unit: u8, samples: &[([f64; 4], f64)]) -> Result<PolarizationCalibra
             (ch.o[k], ch.g[k], ch.b[k], ch.c[k]) = (x[0], x[1], x[2], x[3]);
             sq += rows.iter().map(|(a, y)| (a.dot(&x) - y).powi(2)).sum::<f64>();
         }
-        // The gauges (module doc): the polarized responses sum to zero over the channels (as
-        // for a unit with ideal 0/45/90/135 deg polarizers), mean gain nominal, best channel at
-        // the nominal extinction ratio, mean offset nominal.
-        let g_sum = ch.g.iter().sum::<f64>();
-        let (alpha, beta) = (ch.b.iter().sum::<f64>() / g_sum, ch.c.iter().sum::<f64>() / g_sum);
+        // The gauges (module doc): the channels' polarized responses per gain as close to a
+        // circle about the origin as they go (equal extinction ratios), mean gain nominal,
+        // best channel at the nominal extinction ratio, mean offset nominal.
+        let (alpha, beta) = circle_centre(&ch);
         for k in 0..4 {
             ch.b[k] -= alpha * ch.g[k];
             ch.c[k] -= beta * ch.g[k];
