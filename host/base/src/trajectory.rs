@@ -93,7 +93,51 @@ struct Segment {
 #[derive(Debug, Clone)]
 pub struct Trajectory {
     segments: Vec<Segment>,
+    /// A calibration rig's motion instead of the survey (when not empty).
+    rig: Vec<RigSegment>,
+    rig_depth_m: f64,
     pub duration_s: f64,
+}
+
+/// One step of a calibration rig (a turntable or an indexing fixture holding the head at a fixed
+/// place): a turn at a constant rate about a body axis (rate 0: the head is held still).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RigStep {
+    pub duration_s: f64,
+    /// Unit axis of the turn, body FRD.
+    pub axis_body: [f64; 3],
+    pub rate_radps: f64,
+}
+
+/// A calibration rig's motion: the head at `depth_m` (north and east 0), starting level with
+/// heading `heading0_rad`, turned through `steps` in order; still after the last one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RigMotion {
+    pub depth_m: f64,
+    pub heading0_rad: f64,
+    pub steps: Vec<RigStep>,
+}
+
+impl RigMotion {
+    /// Total length of the steps, s.
+    pub fn duration_s(&self) -> f64 {
+        self.steps.iter().map(|s| s.duration_s.max(0.0)).sum()
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct RigSegment {
+    t0: f64,
+    dur: f64,
+    att0: UnitQuaternion<f64>,
+    axis: Vector3<f64>,
+    rate: f64,
+}
+
+impl RigSegment {
+    fn att(&self, dt: f64) -> UnitQuaternion<f64> {
+        self.att0 * UnitQuaternion::from_scaled_axis(self.axis * (self.rate * dt))
+    }
 }
 
 fn advance(p0: Vector3<f64>, yaw0: f64, s: &Segment, dt: f64) -> (Vector3<f64>, f64) {
@@ -168,11 +212,47 @@ impl Trajectory {
             }
             k += 1;
         }
-        Trajectory { segments: segs, duration_s }
+        Trajectory { segments: segs, rig: Vec::new(), rig_depth_m: 0.0, duration_s }
+    }
+
+    /// The exact motion of a calibration rig (body rate `axis * rate`, specific force `-R^T g`).
+    pub fn rig(motion: &RigMotion) -> Self {
+        let mut t = 0.0;
+        let mut att = UnitQuaternion::from_euler_angles(0.0, 0.0, motion.heading0_rad);
+        let mut rig = Vec::new();
+        for s in &motion.steps {
+            let a = Vector3::from(s.axis_body);
+            let axis = if a.norm() > 0.0 { a.normalize() } else { Vector3::z() };
+            let seg = RigSegment { t0: t, dur: s.duration_s.max(0.0), att0: att, axis, rate: s.rate_radps };
+            att = seg.att(seg.dur);
+            t += seg.dur;
+            rig.push(seg);
+        }
+        rig.push(RigSegment { t0: t, dur: f64::INFINITY, att0: att, axis: Vector3::z(), rate: 0.0 });
+        Trajectory { segments: Vec::new(), rig, rig_depth_m: motion.depth_m, duration_s: t }
+    }
+
+    fn rig_at(&self, t_s: f64) -> Option<Truth> {
+        let seg = self.rig.iter().rev().find(|s| s.t0 <= t_s).or(self.rig.first())?;
+        let dt = (t_s - seg.t0).clamp(0.0, seg.dur);
+        let att = seg.att(dt);
+        let g = Vector3::new(0.0, 0.0, GRAVITY_MPS2);
+        Some(Truth {
+            t_s,
+            pos_ned_m: Vector3::new(0.0, 0.0, self.rig_depth_m),
+            vel_ned_mps: Vector3::zeros(),
+            att_nb: att,
+            yaw_rad: att.euler_angles().2.rem_euclid(std::f64::consts::TAU),
+            gyro_radps: seg.axis * seg.rate,
+            specific_force_mps2: crate::imu::specific_force(&att, &Vector3::zeros(), &g),
+        })
     }
 
     /// Truth at `t_s` (clamped to the trajectory).
     pub fn at(&self, t_s: f64) -> Truth {
+        if let Some(truth) = self.rig_at(t_s) {
+            return truth;
+        }
         let seg = self.segments.iter().rev().find(|s| s.t0 <= t_s).or(self.segments.first()).copied().unwrap_or(Segment {
             t0: 0.0,
             dur: 0.0,
@@ -249,6 +329,31 @@ mod tests {
         let later = pts.len() - block_s as usize;
         assert!(near as f64 > 0.5 * later as f64, "{near} of {later}");
         assert!(pts.iter().all(|p| p.x > -40.0 && p.x < 100.0 && p.y > -40.0 && p.y < 100.0));
+    }
+
+    #[test]
+    fn rig_turns_by_its_steps_and_reads_gravity_in_body_axes() {
+        let q = std::f64::consts::FRAC_PI_2;
+        let motion = RigMotion {
+            depth_m: 3.0,
+            heading0_rad: 0.0,
+            steps: vec![
+                RigStep { duration_s: 2.0, axis_body: [0.0, 0.0, 1.0], rate_radps: 0.0 },
+                RigStep { duration_s: 3.0, axis_body: [1.0, 0.0, 0.0], rate_radps: q / 3.0 },
+            ],
+        };
+        let tr = Trajectory::rig(&motion);
+        assert!((tr.at(1.0).specific_force_mps2 - Vector3::new(0.0, 0.0, -GRAVITY_MPS2)).norm() < 1e-12);
+        assert!((tr.at(3.5).gyro_radps - Vector3::new(q / 3.0, 0.0, 0.0)).norm() < 1e-12);
+        // Rolled 90 deg right: the body y axis points down, gravity reads along -y.
+        let after = tr.at(10.0);
+        assert!((after.specific_force_mps2 - Vector3::new(0.0, -GRAVITY_MPS2, 0.0)).norm() < 1e-9, "{}", after.specific_force_mps2);
+        assert_eq!(after.gyro_radps, Vector3::zeros());
+        assert_eq!(after.pos_ned_m, Vector3::new(0.0, 0.0, 3.0));
+        // The attitude integrates the body rate.
+        let (a, b) = (tr.at(3.0), tr.at(3.0 + 1e-3));
+        let w = crate::imu::body_rate_between(a.att_nb.to_rotation_matrix().matrix(), b.att_nb.to_rotation_matrix().matrix(), 1e-3);
+        assert!((w - a.gyro_radps).norm() < 1e-9);
     }
 
     #[test]

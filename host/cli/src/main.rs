@@ -42,6 +42,8 @@ enum Command {
     Sim(cli::sim::Args),
     /// Run a dive scenario with the firmware in the loop (QEMU or native) and print error statistics.
     Run(cli::run::Args),
+    /// Calibrate a simulated head (polarization units, IMU) and write the calibrations to its store; compare mis-built heads.
+    Calibrate(cli::calibrate::Args),
     /// Run the firmware's estimator on a recording's raw samples and commands and compare with the Nav solutions it sent
     Replay(cli::replay::Args),
     /// Mission report from a recording (+ truth): plots and a Markdown/HTML page.
@@ -84,6 +86,7 @@ fn main() -> std::process::ExitCode {
         Command::Replay(a) => cli::replay::run(a, args.format),
         Command::Sim(a) => cli::sim::run(a, args.format),
         Command::Run(a) => cli::run::run(a, args.format),
+        Command::Calibrate(a) => cli::calibrate::run(a, args.format),
         Command::Lmnn(a) => cli::lmnn::run(a, args.format),
         Command::Map(a) => cli::map::run(a, args.format),
         Command::Ice(a) => cli::ice::run(a, args.format),

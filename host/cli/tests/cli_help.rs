@@ -45,6 +45,9 @@ const EXPECTED: &[(&str, &str)] = &[
     ("ice simulate", "simulated under-ice runs"),
     ("phasecorr", "phase correlation"),
     ("replay", "firmware's estimator"),
+    ("calibrate", "Calibrate a simulated head"),
+    ("calibrate head", "Record the calibration sequence"),
+    ("calibrate compare", "Mis-built heads"),
 ];
 
 /// Commands that exist only in builds with the debug-probe feature.

@@ -28,7 +28,7 @@ use crate::chips::modem::{DeliveryTap, ModemModel};
 use crate::chips::{Ads1115Model, ChipSet, Icm42688Model, ImuInput, Ms5837Model, PressureInput};
 use subnav_base::imu::{DrawOrder, ImuErrors, ImuGrade, normal};
 use subnav_base::sky::{self as polar, Field, SensorErrors, Water};
-use subnav_base::trajectory::{Lawnmower, Trajectory};
+use subnav_base::trajectory::{Lawnmower, RigMotion, Trajectory};
 use subnav_link::qemu::BusHandler;
 
 /// Faults to inject, by time (s since boot).
@@ -212,6 +212,13 @@ pub struct Scenario {
     /// The camera and the map (None: no camera).
     #[serde(default)]
     pub camera: Option<CameraPlan>,
+    /// A mis-built head: the seed of its manufacturing errors (`crate::manufacturing`); None:
+    /// the ideal head (nominal parts, only small calibration residuals).
+    #[serde(default)]
+    pub build_seed: Option<u64>,
+    /// A calibration rig's motion instead of the survey (`subnav calibrate` records on it).
+    #[serde(default)]
+    pub rig: Option<RigMotion>,
 }
 
 impl Default for Scenario {
@@ -231,6 +238,8 @@ impl Default for Scenario {
             position_fixes: Some(FixPlan { period_s: 5.0, sigma_m: 2.0, latency_s: 1.0, as_if_current: false }),
             dvl: default_dvl(),
             camera: None,
+            build_seed: None,
+            rig: None,
         }
     }
 }
@@ -263,7 +272,15 @@ impl Scenario {
     }
 
     pub fn trajectory(&self) -> Trajectory {
-        Trajectory::lawnmower(&self.survey, self.duration_s + 60.0)
+        match &self.rig {
+            Some(rig) => Trajectory::rig(rig),
+            None => Trajectory::lawnmower(&self.survey, self.duration_s + 60.0),
+        }
+    }
+
+    /// The manufacturing errors of a mis-built head (None: the ideal head).
+    pub fn build_errors(&self) -> Option<crate::manufacturing::BuildErrors> {
+        self.build_seed.map(crate::manufacturing::BuildErrors::draw)
     }
 
     /// QEMU board options for the scenario's configured start (UTC at boot, NED origin).
@@ -378,6 +395,17 @@ impl Scenario {
             within("dvl.truncate_probability", d.truncate_probability, 0.0, 1.0)?;
             window("dvl.silent_s", d.silent_s)?;
         }
+        if let Some(rig) = &self.rig {
+            within("rig.depth_m", rig.depth_m, 0.0, 300.0)?;
+            within("rig.heading0_rad", rig.heading0_rad, -100.0, 100.0)?;
+            anyhow::ensure!(rig.steps.len() <= 10_000, "rig.steps: at most 10000 steps, got {}", rig.steps.len());
+            for (k, st) in rig.steps.iter().enumerate() {
+                within(&format!("rig.steps[{k}].duration_s"), st.duration_s, 0.0, MAX_DURATION_S)?;
+                within(&format!("rig.steps[{k}].rate_radps"), st.rate_radps, -10.0, 10.0)?;
+                let n = st.axis_body.iter().map(|a| a * a).sum::<f64>().sqrt();
+                anyhow::ensure!((n - 1.0).abs() < 1e-3, "rig.steps[{k}].axis_body must be a unit vector, got {:?}", st.axis_body);
+            }
+        }
         anyhow::ensure!(s.cross_legs <= 1001, "survey.cross_legs must be at most 1001, got {}", s.cross_legs);
         if let Some(c) = &self.camera {
             within("camera.latency_s", c.latency_s, 0.0, 10.0)?;
@@ -417,7 +445,8 @@ impl Scenario {
 }
 
 /// The IMU's physical input over the dive (what the ICM-42688-P model samples): the truth's
-/// specific force and body rate plus turn-on bias, bias random walk and white noise of the
+/// specific force and body rate (through a mis-built head's IMU axes, scale and repeatable bias:
+/// [`Scenario::build_seed`]) plus turn-on bias, bias random walk and white noise of the
 /// `subnav_core::head` grade (white noise scaled by [`Scenario::imu_noise_scale`]), and the
 /// scenario's stuck-axis fault. Seeded: the same stream for a seed and the same query times.
 pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> ImuInput + Send + 'static {
@@ -431,6 +460,7 @@ pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> Imu
     let mut errors = ImuErrors::new(grade, gyro_bias0, accel_bias0, white);
     let mut last_t = 0.0f64;
     let faults = sc.faults;
+    let build = sc.build_errors();
     let mut frozen: Option<[f64; 6]> = None;
     move |t_us| {
         let t = t_us as f64 * 1e-6;
@@ -438,7 +468,12 @@ pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> Imu
         last_t = t;
         errors.walk(&mut rng, dt, DrawOrder::GyroFirst);
         let truth = traj.at(t);
-        let (gyro, accel) = errors.measure(&truth.gyro_radps, &truth.specific_force_mps2, &mut rng, DrawOrder::PerAxisAccelFirst);
+        // A mis-built head's IMU senses in its own (turned, scaled, skewed) axes.
+        let (rate, force) = match &build {
+            Some(b) => b.sense(&truth.gyro_radps, &truth.specific_force_mps2),
+            None => (truth.gyro_radps, truth.specific_force_mps2),
+        };
+        let (gyro, accel) = errors.measure(&rate, &force, &mut rng, DrawOrder::PerAxisAccelFirst);
         let mut v = [accel.x, accel.y, accel.z, gyro.x, gyro.y, gyro.z];
         if let Some((t0, axis)) = faults.imu_stuck_axis {
             if t >= t0 && axis < 6 {
@@ -564,8 +599,14 @@ impl SimHead {
 
     /// The same head with `flash` as its store's chip (e.g. `W25qModel::with_file`, so the
     /// head keeps its configuration and calibration across runs).
-    pub fn with_flash(mut self, flash: crate::chips::w25q::W25qModel) -> Self {
-        self.chips.detach_spi(0, 1).attach_spi(0, 1, flash);
+    pub fn with_flash(self, flash: crate::chips::w25q::W25qModel) -> Self {
+        self.with_flash_chip(flash)
+    }
+
+    /// The same head with `chip` as its store's flash (e.g. a [`crate::chips::w25q::SharedFlash`]
+    /// that outlives the run, as a real head's flash outlives a reboot).
+    pub fn with_flash_chip(mut self, chip: impl crate::chips::SpiChip + 'static) -> Self {
+        self.chips.detach_spi(0, 1).attach_spi(0, 1, chip);
         self
     }
 
@@ -577,6 +618,17 @@ impl SimHead {
     /// As [`SimHead::with_downlink_tap`], with the camera feeding `map` and the map's fixes
     /// going to the head over the modem link (when the scenario has a camera).
     pub fn build(sc: &Scenario, tap: Option<DeliveryTap>, map: Option<crate::map_loop::MapLoop>) -> Self {
+        Self::build_with_commands(sc, tap, map, Vec::new())
+    }
+
+    /// As [`SimHead::build`], with `commands` (arrival time µs, encoded downlink frame) delivered
+    /// over the modem link besides the scenario's position fixes.
+    pub fn build_with_commands(
+        sc: &Scenario,
+        tap: Option<DeliveryTap>,
+        map: Option<crate::map_loop::MapLoop>,
+        commands: Vec<(u64, Vec<u8>)>,
+    ) -> Self {
         let traj = Arc::new(sc.trajectory());
         let mut chips = ChipSet::new();
 
@@ -598,7 +650,10 @@ impl SimHead {
         water.kd_per_m *= sc.turbidity;
         let err = SensorErrors::default(); // the head's photodiode noise and exposure (subnav_core::head)
         let mut cal_rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0x2222);
-        let true_cal: Vec<_> = units.iter().map(|u| polar::true_channels(u, &err, &mut cal_rng)).collect();
+        let mut true_cal: Vec<_> = units.iter().map(|u| polar::true_channels(u, &err, &mut cal_rng)).collect();
+        if let Some(b) = sc.build_errors() {
+            true_cal = b.polarization;
+        }
         let volts_per_count = 4.096 / 32768.0;
         for (u, addr) in [0x48u8, 0x49, 0x4A, 0x4B].into_iter().enumerate() {
             let (units, true_cal, tr, sc2) = (units.clone(), true_cal.clone(), traj.clone(), sc.clone());
@@ -637,7 +692,9 @@ impl SimHead {
         if let Some(plan) = sc.dvl {
             chips.attach_uart(0, dvl_model(sc, plan, traj.clone()));
         }
-        let mut modem = ModemModel::new(fix_frames(sc), tap);
+        let mut frames = fix_frames(sc);
+        frames.extend(commands);
+        let mut modem = ModemModel::new(frames, tap);
         if let (Some(plan), Some(map)) = (sc.camera, map) {
             let sink = map.clone();
             let camera = camera_model(sc, plan, traj.clone(), Box::new(move |cap| sink.on_capture(cap)));

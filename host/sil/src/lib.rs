@@ -1,10 +1,12 @@
 //! Dive simulator for sensors-in-the-loop runs: the truth trajectory ([`trajectory`]) and the
 //! simulated sensor head ([`head`]) that answers the firmware's bus transactions under QEMU.
 
+pub mod calibrate;
 pub mod chips;
 pub mod dive;
 pub mod filter;
 pub mod head;
+pub mod manufacturing;
 pub mod map_loop;
 pub mod replay;
 pub mod sil;

@@ -143,6 +143,32 @@ pub fn run_native_observed(
     observer: Option<NativeObserver<'_>>,
 ) -> NativeRun {
     let map = sc.map_loop();
+    // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
+    let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
+    let tap = {
+        let d = delivered.clone();
+        Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
+    };
+    let head = SimHead::build(sc, Some(tap), map.clone());
+    run_native_on(sc, head, map, delivered, progress, keep_all, observer)
+}
+
+/// Run `sc` natively on `head` (built for `sc` without a camera: e.g. with a flash that
+/// outlives the run, or with commands on its modem), keeping every message (`keep_all`) or
+/// only the scored ones. The downlink of the result is empty (the head has no tap).
+pub fn run_native_with_head(sc: &Scenario, head: SimHead, keep_all: bool) -> NativeRun {
+    run_native_on(sc, head, None, Arc::default(), None, keep_all, None)
+}
+
+fn run_native_on(
+    sc: &Scenario,
+    head: SimHead,
+    map: Option<MapLoop>,
+    delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>>,
+    progress: Option<&dyn Fn(&LiveStatus)>,
+    keep_all: bool,
+    observer: Option<NativeObserver<'_>>,
+) -> NativeRun {
     let mut sink = Collect {
         observer,
         keep_all,
@@ -156,14 +182,6 @@ pub fn run_native_observed(
     };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
-
-    // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
-    let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
-    let tap = {
-        let d = delivered.clone();
-        Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
-    };
-    let head = SimHead::build(sc, Some(tap), map.clone());
     let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;
@@ -247,4 +265,10 @@ pub fn run_dive_native(sc: &Scenario) -> DiveResult {
     let mut r = evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
     r.map = run.map;
     r
+}
+
+/// As [`run_dive_native`] on a given head (a scenario without a camera).
+pub fn run_dive_native_with_head(sc: &Scenario, head: SimHead) -> DiveResult {
+    let run = run_native_with_head(sc, head, false);
+    evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
 }

@@ -6,6 +6,7 @@ pub mod args;
 #[cfg(feature = "probe")]
 pub mod attach;
 pub mod bathy;
+pub mod calibrate;
 pub mod compass;
 pub mod decode;
 pub mod export;

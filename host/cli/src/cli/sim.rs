@@ -125,11 +125,23 @@ pub struct Args {
     /// the map's position gate must refuse).
     #[arg(long, default_value_t = 0.0, requires = "camera")]
     pub far_image_probability: f64,
+    /// A mis-built head: the seed of its manufacturing errors (polarization channel gains,
+    /// offsets, polarizer angles, extinction ratios; IMU biases, scale, non-orthogonality and
+    /// mounting). Omitted: the ideal head. `subnav calibrate head --build-seed` calibrates it.
+    #[arg(long)]
+    pub build_seed: Option<u64>,
 }
 
 /// The scenario the arguments describe (checked).
 pub fn scenario(a: &Args) -> Result<Scenario> {
-    let mut sc = Scenario { seed: a.seed, duration_s: a.duration_s, lat_deg: a.lat_deg, lon_deg: a.lon_deg, ..Scenario::default() };
+    let mut sc = Scenario {
+        seed: a.seed,
+        duration_s: a.duration_s,
+        lat_deg: a.lat_deg,
+        lon_deg: a.lon_deg,
+        build_seed: a.build_seed,
+        ..Scenario::default()
+    };
     if let Some(t) = &a.start {
         sc.start_utc_unix_us = super::sun::parse_time_us(t)?;
     }

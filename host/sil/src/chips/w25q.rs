@@ -62,6 +62,29 @@ enum Phase {
     Ignore,
 }
 
+/// One chip shared by several runs in a process (a head's flash across reboots): each run
+/// attaches a clone; the contents are the same chip's.
+#[derive(Clone, Default)]
+pub struct SharedFlash(pub std::sync::Arc<std::sync::Mutex<W25qModel>>);
+
+impl SharedFlash {
+    fn chip(&self) -> std::sync::MutexGuard<'_, W25qModel> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl SpiChip for SharedFlash {
+    fn begin(&mut self, t_us: u64) -> Result<(), BusFault> {
+        self.chip().begin(t_us)
+    }
+    fn transfer(&mut self, t_us: u64, write: &[u8], read: &mut [u8]) -> Result<(), BusFault> {
+        self.chip().transfer(t_us, write, read)
+    }
+    fn end(&mut self, t_us: u64) {
+        self.chip().end(t_us)
+    }
+}
+
 pub struct W25qModel {
     mem: Vec<u8>,
     file: Option<File>,
