@@ -265,6 +265,17 @@ impl core::error::Error for NavError {
     }
 }
 
+/// Keep what a UKF update applied from the trial copy `trial` of a sensor's noise statistics:
+/// all of it after an accepted update, only the gate's consecutive-rejection count after a gate
+/// rejection, nothing after a refusal (a refused step changes nothing, R included).
+pub(crate) fn settle<const M: usize>(stored: &mut MeasNoise<f32, M>, trial: MeasNoise<f32, M>, r: &Result<UpdateReport<f32>, UkfError>) {
+    match r {
+        Ok(rep) if rep.accepted => *stored = trial,
+        Ok(_) => stored.consecutive_rejects = trial.consecutive_rejects,
+        Err(_) => {}
+    }
+}
+
 impl From<UkfError> for NavError {
     fn from(e: UkfError) -> Self {
         match e {
@@ -479,8 +490,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let inc = self.inc;
         let decay = libm::expf(-inc.dt_s / self.cfg.markov_tau_s);
         let q_scale = inc.dt_s / self.cfg.cov_dt_s();
-        self.inc = Increments::zero();
+        // A refused predict keeps the increments: the next predict covers their interval too.
         self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        self.inc = Increments::zero();
         self.inject()
     }
 
