@@ -45,6 +45,17 @@ fn snap<const N: usize, const S: usize>(nav: &NavFilter<N, S>) -> String {
     format!("{c:?}")
 }
 
+/// [`snap`] without the Sage-Husa R statistics (R, r, their counter), which a gate rejection
+/// feeds with the clipped innovation when R adaptation is on.
+fn snap_but_r<const N: usize, const S: usize>(nav: &NavFilter<N, S>) -> String {
+    let mut c = nav.clone();
+    (c.noise_heading.r, c.noise_heading.r_mean, c.noise_heading.k) = (SMatrix::zeros(), SMatrix::zeros(), 0);
+    (c.noise_depth.r, c.noise_depth.r_mean, c.noise_depth.k) = (SMatrix::zeros(), SMatrix::zeros(), 0);
+    (c.noise_vel.r, c.noise_vel.r_mean, c.noise_vel.k) = (SMatrix::zeros(), SMatrix::zeros(), 0);
+    (c.noise_pos.r, c.noise_pos.r_mean, c.noise_pos.k) = (SMatrix::zeros(), SMatrix::zeros(), 0);
+    snap(&c)
+}
+
 /// 5 s of IMU, compass, depth, DVL and a fix, ending with an accepted update since the last
 /// predict (the Sage-Husa Q accumulators are not empty) and no pending IMU increments.
 fn warmed(cfg: NavConfig) -> NavFilter15 {
@@ -102,15 +113,35 @@ fn refused_navigation_steps_change_nothing() {
     ];
     for (name, step, want) in cases {
         let mut nav = base.clone();
-        let before = snap(&nav);
+        let (before, before_but_r) = (snap(&nav), snap_but_r(&nav));
         assert_eq!(step(&mut nav, t), want, "{name}");
-        assert_eq!(snap(&nav), before, "{name}: a refused step changed the filter");
+        if want == Ok(false) {
+            // Gated: everything but the Sage-Husa R statistics, which take the clipped innovation.
+            assert_eq!(snap_but_r(&nav), before_but_r, "{name}: a gate rejection changed the filter");
+        } else {
+            assert_eq!(snap(&nav), before, "{name}: a refused step changed the filter");
+        }
     }
-    // Gate rejections are counted, and after them the filter goes on exactly as one that never
-    // saw them.
+    // The position fix brings its own covariance (no R adaptation): its rejection changes
+    // nothing at all but the counts.
     let mut nav = base.clone();
+    let before = snap(&nav);
+    assert!(!nav.update_position(t, [300.0, 0.0, 0.0], [1.0, 0.0, 0.0, 1.0, 0.0, 1.0]).unwrap().accepted);
+    assert_eq!(snap(&nav), before);
+    assert_eq!(nav.health().gate_rejects, base.health().gate_rejects + 1);
+}
+
+/// Without the adaptive layer a gate rejection changes nothing but the counts, and the filter
+/// goes on exactly as one that never saw the rejected measurements.
+#[test]
+fn without_adaptation_a_gated_filter_goes_on_as_if_never_asked() {
+    let base = warmed(NavConfig::default());
+    let t = base.t_us();
+    let mut nav = base.clone();
+    let before = snap(&nav);
     assert!(!nav.update_heading(t, 1.3, None).unwrap().accepted);
     assert!(!nav.update_body_velocity(t, [5.0, 3.0, 0.0], None).unwrap().accepted);
+    assert_eq!(snap(&nav), before);
     assert_eq!(nav.health().gate_rejects, base.health().gate_rejects + 2);
     let mut twin = base.clone();
     for k in 1..=50u64 {
@@ -120,8 +151,7 @@ fn refused_navigation_steps_change_nothing() {
     }
     let tk = t + 500_000;
     assert_eq!(nav.update_heading(tk, 0.3, None), twin.update_heading(tk, 0.3, None));
-    assert_eq!(nav.covariance(), twin.covariance());
-    assert_eq!(nav.nominal(), twin.nominal());
+    assert_eq!(snap(&nav), snap(&twin));
 }
 
 /// With the adaptive layer off a sensor brings its own sigma; a gated measurement used to leave

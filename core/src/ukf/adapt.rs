@@ -15,12 +15,14 @@
 //! the subtracted term (`Q_k = (1-d_k) Q_{k-1} + d_k sum K e e^T K^T`, `R_k = (1-d_k) R_{k-1} +
 //! d_k e e^T`, both PD because `Q_{k-1}`/`R_{k-1}` are), and its eigenvalues are floored.
 //!
-//! Gated-out measurements (ours): a gate rejection is a refused step and changes nothing, R
-//! included (`filter` module doc). An earlier version fed the R recursion the innovation of a
-//! rejected measurement clipped to the gate, so a sensor whose noise jumps past the gate could
-//! still teach R; that broke the promise that a refused step changes nothing, and the R of a
-//! sensor whose noise has grown is still learnt from the measurements the gate lets through
-//! and, after `gate_release_after` consecutive rejections, from those the lifted floor admits.
+//! Gated-out measurements (ours): the innovation fed to the R recursion is clipped to the gate
+//! boundary (Huber-style), and a gated-out measurement does feed it (clipped), though it changes
+//! nothing else (not the state, P, Q, the Q accumulators or the fading statistics). Without that,
+//! a sensor whose noise suddenly grows has its measurements rejected by the gate and R can never
+//! learn the new level; with it, one outlier moves R by at most `d_k * gate * S`. Measured on the
+//! 40 dives of seeds 0..40 (`subnav filter monte-carlo --seeds 0..40 --no-fading`, release):
+//! R left alone by a rejection gave 6 / 40 divergences (worst horizontal error 39.5 m), the
+//! clipped step 0 / 40 (worst 3.4 m).
 //!
 //! Fading factor (strong tracking, spec A5): innovation covariance with forgetting `rho`:
 //! `V_0 = e e^T`, `V_k = (rho V_{k-1} + e e^T) / (1 + rho)`. Divergence test

@@ -9,10 +9,12 @@
 //! A refused step changes nothing: every predict and update computes its results (state, `P`
 //! and its factor, the Sage-Husa `Q`/`q` step, the fading factor's statistics) in locals and
 //! writes them only once nothing can fail any more. After a refusal (non-finite input or model
-//! output, innovation covariance not PD, a `P` the eigenvalue repair cannot make PD, a gate
-//! rejection) the state, `P`, `Q`, the caller's `R` and every adaptive accumulator are bit for
-//! bit what they were; only the health counters and, for a gate rejection, the gate's own
-//! consecutive-rejection count move (`refusal_tests.rs` checks each path).
+//! output, innovation covariance not PD, a `P` the eigenvalue repair cannot make PD) the state,
+//! `P`, `Q`, the caller's `R` and every adaptive accumulator are bit for bit what they were;
+//! only the health counters move. A gate rejection leaves the state, `P`, `Q` and the
+//! accumulators bit for bit too; it moves the gate's count and, with Sage-Husa R on, feeds R
+//! the clipped innovation (adapt module doc: the measured reason) — nothing else
+//! (`refusal_tests.rs` checks each path).
 
 use core::marker::PhantomData;
 
@@ -387,10 +389,12 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
 
     /// Measurement update with `z` (space `Z`), noise statistics `noise` and model `h`.
     ///
-    /// A rejected (gated) measurement returns `Ok` with `accepted = false` and changes nothing but
-    /// the counters (`noise.consecutive_rejects`, `gate_rejects`); any other refusal returns an
-    /// error and changes nothing but a health counter. Only an accepted update writes `x`, `P`,
-    /// the adaptive accumulators and `noise` (R, its Sage-Husa and fading statistics).
+    /// A rejected (gated) measurement returns `Ok` with `accepted = false`: `x`, `P`, `Q` and the
+    /// accumulators are unchanged, the counters move (`noise.consecutive_rejects`,
+    /// `gate_rejects`) and, with Sage-Husa R on for this measurement, its innovation clipped to
+    /// the gate updates `R`/`r` and their counter (adapt module doc). Any other refusal returns
+    /// an error and changes nothing but a health counter. Only an accepted update writes `x`,
+    /// `P`, the Q accumulators and the fading statistics.
     pub fn update<const M: usize, Z, H>(
         &mut self,
         z: &SVector<T, M>,
@@ -428,6 +432,11 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         if !(nis_gate <= noise.gate) {
             noise.consecutive_rejects = noise.consecutive_rejects.saturating_add(1);
             self.health.gate_rejects = self.health.gate_rejects.wrapping_add(1);
+            // The one thing a rejected measurement may change besides the counts: with Sage-Husa
+            // R on, its innovation clipped to the gate informs R (adapt module doc: without
+            // it, a sensor whose noise jumps past the gate never teaches R).
+            let clip = (noise.gate / nis_gate).sqrt();
+            self.adapt_r(noise, &(e * clip), z, &zhat0, &pzz);
             return Ok(UpdateReport { accepted: false, nis: nis_full, nis_gate, lambda: T::one() });
         }
 

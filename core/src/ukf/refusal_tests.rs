@@ -146,19 +146,28 @@ fn an_unrepairable_posterior_is_refused_as_such() {
     assert_eq!(snap(&u), before);
 }
 
-/// A gate rejection writes nothing but the gate's count: not R (no Sage-Husa step on a rejected
-/// measurement), not the fading statistics, not the Q accumulators.
+/// A gate rejection writes nothing but the gate's count and, with Sage-Husa R on, R / r / their
+/// counter from the clipped innovation (adapt module doc): not the state, P, Q, the Q
+/// accumulators or the fading statistics. With R adaptation off for the measurement it writes
+/// nothing but the count, and the filter goes on exactly as one that never saw it.
 #[test]
-fn a_gate_rejection_changes_nothing_but_the_gate_count() {
+fn a_gate_rejection_changes_nothing_but_the_gate_count_and_r() {
+    let far = Vector2::new(50.0, -50.0);
     let (mut u, mut n) = warmed();
-    let (before, before_n, h0, c0) = (snap(&u), snap_noise(&n), *u.health(), n.consecutive_rejects);
-    let rep = u.update::<2, Euclidean, _>(&Vector2::new(50.0, -50.0), &mut n, |x| *x).unwrap();
-    assert!(!rep.accepted);
-    assert_eq!((snap(&u), snap_noise(&n)), (before, before_n));
+    let (before, h0, c0, n0) = (snap(&u), *u.health(), n.consecutive_rejects, n);
+    assert!(!u.update::<2, Euclidean, _>(&far, &mut n, |x| *x).unwrap().accepted);
+    assert_eq!(snap(&u), before);
     assert_eq!((u.health().gate_rejects, n.consecutive_rejects), (h0.gate_rejects + 1, c0 + 1));
-    // And the filter goes on from exactly where it was: the next accepted update equals the one
-    // a filter that never saw the rejected measurement makes.
+    assert_eq!((n.v, n.v_k, n.inn_mean, n.inn_pow, n.inn_k), (n0.v, n0.v_k, n0.inn_mean, n0.inn_pow, n0.inn_k));
+    assert_eq!(n.k, n0.k + 1, "the clipped Sage-Husa R step ran");
+    // R adaptation off for this measurement: nothing but the count.
+    let (mut u, mut n) = warmed();
+    n.adapt = false;
+    let (before, before_n) = (snap(&u), snap_noise(&n));
+    assert!(!u.update::<2, Euclidean, _>(&far, &mut n, |x| *x).unwrap().accepted);
+    assert_eq!((snap(&u), snap_noise(&n)), (before, before_n));
     let (mut twin, mut n_twin) = warmed();
+    n_twin.adapt = false;
     let z = Vector2::new(0.7, 0.2);
     let a = u.update::<2, Euclidean, _>(&z, &mut n, |x| *x).unwrap();
     let b = twin.update::<2, Euclidean, _>(&z, &mut n_twin, |x| *x).unwrap();
