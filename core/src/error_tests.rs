@@ -19,7 +19,7 @@ fn ephemeris_error() {
 #[test]
 fn ukf_errors() {
     use UkfError::*;
-    assert_distinct_messages("UkfError", &[&NonFiniteInput, &NonFiniteResult, &NotPositiveDefinite, &BadConfig]);
+    assert_distinct_messages("UkfError", &[&NonFiniteInput, &NonFiniteResult, &NotPositiveDefinite, &CovarianceUnrepairable, &BadConfig]);
     assert_distinct_messages("WeightError", &[&WeightError::WrongPointCount, &WeightError::BadParameters]);
 }
 
@@ -29,6 +29,7 @@ fn nav_error() {
         NavError::Filter(UkfError::NonFiniteInput),
         NavError::Filter(UkfError::NonFiniteResult),
         NavError::Filter(UkfError::NotPositiveDefinite),
+        NavError::Filter(UkfError::CovarianceUnrepairable),
         NavError::Filter(UkfError::BadConfig),
     ];
     let mut all: Vec<&dyn core::error::Error> =

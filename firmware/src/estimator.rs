@@ -467,6 +467,7 @@ impl Estimator {
                 q_diag: [0.0; 5],
                 r_diag: [0.0; 4],
                 pd_repairs: 0,
+                cov_unrepairable: 0,
                 gate_rejects: 0,
                 nonfinite_rejects: self.input_rejects,
                 late_fused: 0,

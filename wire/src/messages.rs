@@ -188,6 +188,9 @@ pub struct FilterHealth {
     pub r_diag: [f32; 4],
     /// Covariance repairs (symmetrise / eigenvalue floor) since boot.
     pub pd_repairs: u32,
+    /// Filter steps refused since boot because the state covariance could not be made
+    /// positive definite even by the eigenvalue repair (the step was not applied).
+    pub cov_unrepairable: u32,
     /// Measurements rejected by the innovation gate since boot.
     pub gate_rejects: u32,
     /// Samples rejected as non-finite since boot.

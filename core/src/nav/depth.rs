@@ -6,7 +6,7 @@ use nalgebra::{SVector, Vector1};
 
 use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{KIND_DEPTH, NavError, NavFilter};
+use super::filter::{KIND_DEPTH, NavError, NavFilter, settle};
 use super::state::{NominalState, POS};
 
 /// Predicted depth of an error sigma point.
@@ -18,13 +18,15 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Depth (m, positive down) with its 1-sigma (`None`: configured/adapted noise).
     pub fn update_depth(&mut self, t_us: u64, depth_m: f32, sigma_m: Option<f32>) -> Result<UpdateReport<f32>, NavError> {
         self.begin_update(&[depth_m, sigma_m.unwrap_or(1.0)])?;
+        let mut noise = self.noise_depth;
         if let Some(s) = sigma_m.filter(|s| *s > 0.0) {
-            if !(self.cfg.ukf.adapt.r_cov && self.noise_depth.adapt) {
-                self.noise_depth.r[(0, 0)] = s * s;
+            if !(self.cfg.ukf.adapt.r_cov && noise.adapt) {
+                noise.r[(0, 0)] = s * s;
             }
         }
         let nom = self.nom;
-        let r = self.ukf.update::<1, Euclidean, _>(&Vector1::new(depth_m), &mut self.noise_depth, |dx| h_depth(&nom, dx));
+        let r = self.ukf.update::<1, Euclidean, _>(&Vector1::new(depth_m), &mut noise, |dx| h_depth(&nom, dx));
+        settle(&mut self.noise_depth, noise, &r);
         self.end_update(KIND_DEPTH, t_us, r, false)
     }
 }

@@ -26,7 +26,7 @@ use nalgebra::{Matrix3, SVector, UnitQuaternion, Vector3};
 use crate::ukf::pd;
 use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{KIND_VELOCITY, NavError, NavFilter};
+use super::filter::{KIND_VELOCITY, NavError, NavFilter, settle};
 use super::rotation::quat_from_rotation_vector;
 use super::state::{ATT, BG, MARKOV, NominalState, VEL, seg};
 
@@ -116,9 +116,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         };
         let delayed = self.check_time(m.t_us)?;
         self.begin_update(&[])?;
+        let mut meas = self.noise_vel;
         if let Some(r) = noise {
-            if !(self.cfg.ukf.adapt.r_cov && self.noise_vel.adapt) {
-                self.noise_vel.r = r;
+            if !(self.cfg.ukf.adapt.r_cov && meas.adapt) {
+                meas.r = r;
             }
         }
         let gyro = Vector3::from(m.gyro_radps);
@@ -127,10 +128,11 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
         let past = if delayed { Some(self.past_epoch(m.t_us)?) } else { None };
         let nom = self.nom;
-        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| match &past {
+        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut meas, |dx| match &past {
             Some(ep) => h_dvl(&ep.nom, &ep.map(dx), &mount, &gyro),
             None => h_dvl(&nom, dx, &mount, &gyro),
         });
+        settle(&mut self.noise_vel, meas, &r);
         self.end_update(KIND_VELOCITY, m.t_us, r, delayed)
     }
 }

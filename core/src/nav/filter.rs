@@ -179,8 +179,10 @@ impl Default for NavConfig {
 
 impl NavConfig {
     /// The adaptive (AUKF) variant of a configuration: Sage-Husa R estimation and the fading
-    /// factor on (Q adaptation stays off: the aiding sensors observe too little of the 15-state
-    /// process noise to estimate it; it can be switched on in `ukf.adapt`).
+    /// factor with its persistence test on (Q adaptation stays off: the aiding sensors observe
+    /// too little of the 15-state process noise to estimate it; it can be switched on in
+    /// `ukf.adapt`). `fading_persist = 0` gives the seed's fading factor (its divergence test
+    /// alone), which reads a rise in sensor noise as divergence (`crate::ukf::adapt`).
     pub fn adaptive(mut self) -> Self {
         self.ukf.adapt = AdaptConfig {
             b: 0.95,
@@ -191,6 +193,7 @@ impl NavConfig {
             lambda0: 1.0,
             lambda_max: 3.0,
             rho: 0.95,
+            fading_persist: 1.0,
             ..AdaptConfig::plain()
         };
         self
@@ -262,6 +265,24 @@ impl core::error::Error for NavError {
             NavError::Filter(e) => Some(e),
             _ => None,
         }
+    }
+}
+
+/// Keep what a UKF update applied from the trial copy `trial` of a sensor's noise statistics
+/// (the copy carries a sensor-supplied sigma, which only an accepted measurement may leave
+/// behind): all of it after an accepted update; after a gate rejection the gate's count and, if
+/// the Sage-Husa recursion ran (its counter moved), R, r and that counter; nothing after a
+/// refusal.
+pub(crate) fn settle<const M: usize>(stored: &mut MeasNoise<f32, M>, trial: MeasNoise<f32, M>, r: &Result<UpdateReport<f32>, UkfError>) {
+    match r {
+        Ok(rep) if rep.accepted => *stored = trial,
+        Ok(_) => {
+            stored.consecutive_rejects = trial.consecutive_rejects;
+            if trial.k != stored.k {
+                (stored.r, stored.r_mean, stored.k) = (trial.r, trial.r_mean, trial.k);
+            }
+        }
+        Err(_) => {}
     }
 }
 
@@ -479,8 +500,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let inc = self.inc;
         let decay = libm::expf(-inc.dt_s / self.cfg.markov_tau_s);
         let q_scale = inc.dt_s / self.cfg.cov_dt_s();
-        self.inc = Increments::zero();
+        // A refused predict keeps the increments: the next predict covers their interval too.
         self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        self.inc = Increments::zero();
         self.inject()
     }
 

@@ -9,7 +9,7 @@ use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector1};
 
 use crate::ukf::{AngleSpace, UpdateReport};
 
-use super::filter::{KIND_HEADING, NavError, NavFilter};
+use super::filter::{KIND_HEADING, NavError, NavFilter, settle};
 use super::state::{ATT, NominalState, VEL, seg, yaw_of};
 
 /// Predicted heading of an error sigma point.
@@ -24,14 +24,16 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// and `sigma_rad` is ignored.
     pub fn update_heading(&mut self, t_us: u64, heading_rad: f32, sigma_rad: Option<f32>) -> Result<UpdateReport<f32>, NavError> {
         self.begin_update(&[heading_rad, sigma_rad.unwrap_or(1.0)])?;
+        let mut noise = self.noise_heading;
         if let Some(s) = sigma_rad.filter(|s| *s > 0.0) {
-            if !(self.cfg.ukf.adapt.r_cov && self.noise_heading.adapt) {
-                self.noise_heading.r[(0, 0)] = s * s;
+            if !(self.cfg.ukf.adapt.r_cov && noise.adapt) {
+                noise.r[(0, 0)] = s * s;
             }
         }
         let nom = self.nom;
         let z = Vector1::new(crate::ukf::wrap_pi(heading_rad));
-        let r = self.ukf.update::<1, AngleSpace, _>(&z, &mut self.noise_heading, |dx| h_heading(&nom, dx));
+        let r = self.ukf.update::<1, AngleSpace, _>(&z, &mut noise, |dx| h_heading(&nom, dx));
+        settle(&mut self.noise_heading, noise, &r);
         self.end_update(KIND_HEADING, t_us, r, false)
     }
 }

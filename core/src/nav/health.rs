@@ -12,6 +12,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// - `pd_repairs`: eigenvalue repairs of P plus Sage-Husa Q/R candidates that lost positive
     ///   definiteness and were replaced by the biased form (the message has one counter; see
     ///   [`crate::ukf::UkfHealth`] for them apart).
+    /// - `cov_unrepairable`: steps the UKF refused because the new P could not be made PD
+    ///   ([`crate::ukf::UkfError::CovarianceUnrepairable`]); the filter is unchanged by them.
     /// - `nonfinite_rejects`: inputs rejected before the UKF plus those the UKF rejected.
     /// - `late_fused` / `late_refused`: the delayed-fusion counters (`delayed_updates`,
     ///   `delay_rejects`).
@@ -28,6 +30,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             q_diag: [g(ATT), g(VEL), g(POS), g(BG), g(BA)],
             r_diag: self.r_diag(),
             pd_repairs: h.pd_repairs.saturating_add(h.adapt_fallbacks),
+            cov_unrepairable: h.unrepairable_rejects,
             gate_rejects: h.gate_rejects,
             nonfinite_rejects: h.nonfinite_rejects.saturating_add(self.imu_rejects),
             late_fused: self.delayed_updates(),

@@ -45,4 +45,6 @@ pub use state::NominalState;
 #[cfg(test)]
 mod delay_tests;
 #[cfg(test)]
+mod refusal_tests;
+#[cfg(test)]
 mod tests;

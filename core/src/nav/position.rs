@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, SVector, Vector3};
 use crate::ukf::pd;
 use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{KIND_POSITION, NavError, NavFilter};
+use super::filter::{KIND_POSITION, NavError, NavFilter, settle};
 use super::state::{NominalState, POS, seg};
 
 /// Predicted position of an error sigma point.
@@ -37,17 +37,19 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if nalgebra::linalg::Cholesky::new(r).is_none() || !pd::all_finite(&r) {
             return Err(self.reject_nonfinite());
         }
-        if !(self.cfg.ukf.adapt.r_cov && self.noise_pos.adapt) {
-            self.noise_pos.r = r;
+        let mut noise = self.noise_pos;
+        if !(self.cfg.ukf.adapt.r_cov && noise.adapt) {
+            noise.r = r;
         }
         let z = Vector3::from(pos_ned_m);
         // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
         let past = if delayed { Some(self.past_epoch(t_us)?) } else { None };
         let nom = self.nom;
-        let res = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_pos, |dx| match &past {
+        let res = self.ukf.update::<3, Euclidean, _>(&z, &mut noise, |dx| match &past {
             Some(ep) => h_position(&ep.nom, &ep.map(dx)),
             None => h_position(&nom, dx),
         });
+        settle(&mut self.noise_pos, noise, &res);
         self.end_update(KIND_POSITION, t_us, res, delayed)
     }
 }

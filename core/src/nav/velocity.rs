@@ -9,7 +9,7 @@ use nalgebra::{SVector, Vector3};
 
 use crate::ukf::{Euclidean, UpdateReport};
 
-use super::filter::{KIND_VELOCITY, NavError, NavFilter};
+use super::filter::{KIND_VELOCITY, NavError, NavFilter, settle};
 use super::state::{ATT, NominalState, VEL, seg};
 
 /// Predicted body velocity of an error sigma point.
@@ -33,19 +33,21 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         }
         let delayed = self.check_time(t_us)?;
         self.begin_update(&vals)?;
+        let mut noise = self.noise_vel;
         if let Some(s) = sigma_mps.filter(|s| *s > 0.0) {
-            if !(self.cfg.ukf.adapt.r_cov && self.noise_vel.adapt) {
-                self.noise_vel.r = nalgebra::Matrix3::identity() * (s * s);
+            if !(self.cfg.ukf.adapt.r_cov && noise.adapt) {
+                noise.r = nalgebra::Matrix3::identity() * (s * s);
             }
         }
         let z = Vector3::from(vel_frd_mps);
         // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
         let past = if delayed { Some(self.past_epoch(t_us)?) } else { None };
         let nom = self.nom;
-        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut self.noise_vel, |dx| match &past {
+        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut noise, |dx| match &past {
             Some(ep) => h_body_velocity(&ep.nom, &ep.map(dx)),
             None => h_body_velocity(&nom, dx),
         });
+        settle(&mut self.noise_vel, noise, &r);
         self.end_update(KIND_VELOCITY, t_us, r, delayed)
     }
 }

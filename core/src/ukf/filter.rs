@@ -4,15 +4,24 @@
 //! does: its predict re-draws `sigmas_f` from the prior), so updates of different sizes and rates
 //! can follow each other in any order. `P` is stored with its Cholesky factor; every write goes
 //! through [`super::pd::finalize`] (symmetrize, factor, repair and count if needed), and the
-//! factor is reused for the next sigma-point draw. A step that would produce a non-finite state
-//! leaves the filter untouched and returns an error.
+//! factor is reused for the next sigma-point draw.
+//!
+//! A refused step changes nothing: every predict and update computes its results (state, `P`
+//! and its factor, the Sage-Husa `Q`/`q` step, the fading factor's statistics) in locals and
+//! writes them only once nothing can fail any more. After a refusal (non-finite input or model
+//! output, innovation covariance not PD, a `P` the eigenvalue repair cannot make PD) the state,
+//! `P`, `Q`, the caller's `R` and every adaptive accumulator are bit for bit what they were;
+//! only the health counters move. A gate rejection leaves the state, `P`, `Q` and the
+//! accumulators bit for bit too; it moves the gate's count and, with Sage-Husa R on, feeds R
+//! the clipped innovation (adapt module doc: the measured reason) — nothing else
+//! (`refusal_tests.rs` checks each path).
 
 use core::marker::PhantomData;
 
 use nalgebra::linalg::Cholesky;
 use nalgebra::{RealField, SMatrix, SVector};
 
-use super::adapt::{AdaptConfig, MeasNoise, sage_husa_cov, sage_husa_d};
+use super::adapt::{AdaptConfig, FadingStats, MeasNoise, sage_husa_cov, sage_husa_d};
 use super::gate::{gating_cov, nis};
 use super::pd::{add_outer_lower, all_finite, finalize, finalize_in_place, mirror_lower};
 use super::space::{Euclidean, Space};
@@ -55,12 +64,32 @@ pub struct UkfHealth<T> {
     pub adapt_fallbacks: u32,
     /// Inputs or model outputs that were not finite (the step was not applied).
     pub nonfinite_rejects: u32,
+    /// Steps refused because the new `P` could not be made PD by the eigenvalue repair
+    /// ([`UkfError::CovarianceUnrepairable`]; the step was not applied).
+    pub unrepairable_rejects: u32,
     /// Measurements rejected by the innovation gate.
     pub gate_rejects: u32,
     /// Times the fading factor fired.
     pub fading_events: u32,
     /// Fading factor of the latest accepted update (1 = none).
     pub last_lambda: T,
+}
+
+impl<T: RealField + Copy> UkfHealth<T> {
+    /// All counters zero (one repair if the initial `P` needed it).
+    fn fresh(repaired: bool) -> Self {
+        Self {
+            predicts: 0,
+            updates_accepted: 0,
+            pd_repairs: u32::from(repaired),
+            adapt_fallbacks: 0,
+            nonfinite_rejects: 0,
+            unrepairable_rejects: 0,
+            gate_rejects: 0,
+            fading_events: 0,
+            last_lambda: T::one(),
+        }
+    }
 }
 
 /// Why a step was not applied. The filter state is unchanged after any of them.
@@ -72,6 +101,9 @@ pub enum UkfError {
     NonFiniteResult,
     /// The innovation covariance could not be factored.
     NotPositiveDefinite,
+    /// The new state covariance was finite but not PD, and the eigenvalue repair could not make
+    /// it PD (e.g. a zero floor on a singular `P`, or the eigen-sweeps did not converge).
+    CovarianceUnrepairable,
     /// Weights could not be built (S != 2N+1, or N + lambda <= 0) or the adaptive config is out
     /// of range.
     BadConfig,
@@ -83,6 +115,9 @@ impl core::fmt::Display for UkfError {
             UkfError::NonFiniteInput => "UKF input (measurement, noise matrix or scale) is NaN or infinite",
             UkfError::NonFiniteResult => "UKF model output or result is NaN or infinite",
             UkfError::NotPositiveDefinite => "UKF innovation covariance is not positive definite",
+            UkfError::CovarianceUnrepairable => {
+                "UKF state covariance is not positive definite and the eigenvalue repair could not make it so"
+            }
             UkfError::BadConfig => "UKF configuration out of range (sigma-point weights or adaptive settings)",
         })
     }
@@ -135,19 +170,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             return Err(UkfError::NonFiniteInput);
         }
         let f = finalize(p0, cfg.p_floor, cfg.p_rel_floor).ok_or(UkfError::NotPositiveDefinite)?;
-        let mut health = UkfHealth {
-            predicts: 0,
-            updates_accepted: 0,
-            pd_repairs: 0,
-            adapt_fallbacks: 0,
-            nonfinite_rejects: 0,
-            gate_rejects: 0,
-            fading_events: 0,
-            last_lambda: T::one(),
-        };
-        if f.repaired {
-            health.pd_repairs += 1;
-        }
+        let health = UkfHealth::fresh(f.repaired);
         Ok(Self {
             x: x0,
             p: f.p,
@@ -177,16 +200,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             return Err(UkfError::NonFiniteInput);
         }
         let f = finalize(p0, cfg.p_floor, cfg.p_rel_floor).ok_or(UkfError::NotPositiveDefinite)?;
-        self.health = UkfHealth {
-            predicts: 0,
-            updates_accepted: 0,
-            pd_repairs: u32::from(f.repaired),
-            adapt_fallbacks: 0,
-            nonfinite_rejects: 0,
-            gate_rejects: 0,
-            fading_events: 0,
-            last_lambda: T::one(),
-        };
+        self.health = UkfHealth::fresh(f.repaired);
         self.x = x0;
         self.p = f.p;
         self.l = f.l;
@@ -250,13 +264,30 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         Ok(())
     }
 
+    /// Symmetrize, factor and if needed repair a candidate `P` into `p` and `l`, without touching
+    /// the filter: `Ok(repaired)`, or the refusal (counted) if it is not finite or cannot be
+    /// made PD.
+    fn factor(&mut self, p: &mut SMatrix<T, N, N>, l: &mut SMatrix<T, N, N>) -> Result<bool, UkfError> {
+        if !all_finite(p) {
+            self.health.nonfinite_rejects = self.health.nonfinite_rejects.wrapping_add(1);
+            return Err(UkfError::NonFiniteResult);
+        }
+        match finalize_in_place(p, l, self.cfg.p_floor, self.cfg.p_rel_floor) {
+            Some(repaired) => Ok(repaired),
+            None => {
+                self.health.unrepairable_rejects = self.health.unrepairable_rejects.wrapping_add(1);
+                Err(UkfError::CovarianceUnrepairable)
+            }
+        }
+    }
+
     fn commit_p(&mut self, mut p: SMatrix<T, N, N>) -> Result<(), UkfError> {
         // In place (`pd` module doc: stack on the sensor head); on failure `self.p` and `self.l`
         // are unchanged.
         let mut l = SMatrix::<T, N, N>::zeros();
-        let repaired = finalize_in_place(&mut p, &mut l, self.cfg.p_floor, self.cfg.p_rel_floor).ok_or(UkfError::NonFiniteResult)?;
+        let repaired = self.factor(&mut p, &mut l)?;
         if repaired {
-            self.health.pd_repairs += 1;
+            self.health.pd_repairs = self.health.pd_repairs.wrapping_add(1);
         }
         self.p = p;
         self.l = l;
@@ -278,32 +309,33 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         pts
     }
 
-    /// Sage-Husa Q/q step from the updates since the previous predict.
-    fn adapt_q(&mut self) {
+    /// Sage-Husa Q/q step from the updates since the previous predict, into `q` (which holds the
+    /// current `Q` on entry); returns the new `(q_mean, q_k, fallbacks)`. Nothing in the filter
+    /// changes: the predict commits the result only if it succeeds.
+    fn adapted_q(&self, q: &mut SMatrix<T, N, N>) -> (SVector<T, N>, u32, u32) {
         let a = self.cfg.adapt;
         if self.acc_n == 0 || !(a.q_cov || a.q_mean) {
-            return;
+            return (self.q_mean, self.q_k, 0);
         }
         let d = sage_husa_d(a.b, self.q_k);
-        self.q_k = self.q_k.saturating_add(1);
-        if a.q_mean {
-            self.q_mean = self.q_mean * (T::one() - d) + self.acc_ke * d;
-        }
+        let q_mean = if a.q_mean { self.q_mean * (T::one() - d) + self.acc_ke * d } else { self.q_mean };
+        let mut fallbacks = 0;
         if a.q_cov {
             let delta = self.p - self.spread;
-            match sage_husa_cov(&self.q, d, &self.acc_keek, &delta, self.cfg.q_floor) {
+            match sage_husa_cov(q, d, &self.acc_keek, &delta, self.cfg.q_floor) {
                 Some(ad) => {
-                    if ad.fallback {
-                        self.health.adapt_fallbacks += 1;
-                    }
-                    self.q = ad.cov;
+                    fallbacks += u32::from(ad.fallback);
+                    *q = ad.cov;
                 }
-                None => self.health.adapt_fallbacks += 1, // keep the old Q
+                None => fallbacks += 1, // keep the old Q
             }
         }
+        (q_mean, self.q_k.saturating_add(1), fallbacks)
     }
 
-    /// Time update: `x_i <- f(sigma_i)`, `P <- sum Wc r r^T + q_scale * Q`.
+    /// Time update: `x_i <- f(sigma_i)`, `P <- sum Wc r r^T + q_scale * Q` (with the Sage-Husa
+    /// `Q`/`q` step first when it is on). Refused (nothing changed, see the module doc) if
+    /// `q_scale` or a model output is not finite, or the new `P` cannot be made PD.
     pub fn predict<F>(&mut self, q_scale: T, mut f: F) -> Result<(), UkfError>
     where
         F: FnMut(&SVector<T, N>) -> SVector<T, N>,
@@ -321,7 +353,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                 return Err(UkfError::NonFiniteResult);
             }
         }
-        self.adapt_q();
+        let mut q = self.q;
+        let (q_mean, q_k, fallbacks) = self.adapted_q(&mut q);
         let xm = X::mean(&prop, &self.w.wm);
         let mut spread = SMatrix::<T, N, N>::zeros();
         for (c, wc) in prop.iter().zip(self.w.wc.iter()) {
@@ -329,12 +362,22 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             add_outer_lower(&mut spread, *wc, &r);
         }
         mirror_lower(&mut spread);
-        let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &self.q_mean) } else { xm };
+        let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &q_mean) } else { xm };
         if !all_finite(&x_new) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         }
-        self.commit_p(spread + self.q * q_scale)?;
+        let mut p = spread + q * q_scale;
+        let mut l = SMatrix::<T, N, N>::zeros();
+        let repaired = self.factor(&mut p, &mut l)?;
+        // Nothing can fail from here on.
+        self.health.pd_repairs = self.health.pd_repairs.wrapping_add(u32::from(repaired));
+        self.health.adapt_fallbacks = self.health.adapt_fallbacks.wrapping_add(fallbacks);
+        self.p = p;
+        self.l = l;
+        self.q = q;
+        self.q_mean = q_mean;
+        self.q_k = q_k;
         self.x = x_new;
         self.spread = spread;
         self.acc_ke = SVector::zeros();
@@ -346,8 +389,12 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
 
     /// Measurement update with `z` (space `Z`), noise statistics `noise` and model `h`.
     ///
-    /// A rejected (gated) measurement returns `Ok` with `accepted = false`; non-finite input
-    /// returns an error. In both cases `x` and `P` are unchanged.
+    /// A rejected (gated) measurement returns `Ok` with `accepted = false`: `x`, `P`, `Q` and the
+    /// accumulators are unchanged, the counters move (`noise.consecutive_rejects`,
+    /// `gate_rejects`) and, with Sage-Husa R on for this measurement, its innovation clipped to
+    /// the gate updates `R`/`r` and their counter (adapt module doc). Any other refusal returns
+    /// an error and changes nothing but a health counter. Only an accepted update writes `x`,
+    /// `P`, the Q accumulators and the fading statistics.
     pub fn update<const M: usize, Z, H>(
         &mut self,
         z: &SVector<T, M>,
@@ -369,13 +416,15 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         };
         let e = Z::residual(z, &zhat);
         let mut s = pzz + noise.r;
-        let nis_full = match nis(&e, &s) {
-            Some(v) => v,
-            None => {
-                self.health.nonfinite_rejects += 1;
-                return Err(UkfError::NotPositiveDefinite);
-            }
+        let Some(chol_prior) = Cholesky::new(s) else {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NotPositiveDefinite);
         };
+        let nis_full = e.dot(&chol_prior.solve(&e));
+        if !nis_full.is_finite() {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NotPositiveDefinite);
+        }
         let release = noise.gate_release_after > 0 && noise.consecutive_rejects >= noise.gate_release_after;
         let s_gate = if release { s } else { gating_cov(&pzz, &noise.r, noise.gate_state_max) };
         let nis_gate = nis(&e, &s_gate).ok_or(UkfError::NotPositiveDefinite)?;
@@ -383,26 +432,28 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         if !(nis_gate <= noise.gate) {
             noise.consecutive_rejects = noise.consecutive_rejects.saturating_add(1);
             self.health.gate_rejects = self.health.gate_rejects.wrapping_add(1);
-            // Clipped innovation still informs R (see adapt module doc).
+            // The one thing a rejected measurement may change besides the counts: with Sage-Husa
+            // R on, its innovation clipped to the gate informs R (adapt module doc: without
+            // it, a sensor whose noise jumps past the gate never teaches R).
             let clip = (noise.gate / nis_gate).sqrt();
             self.adapt_r(noise, &(e * clip), z, &zhat0, &pzz);
             return Ok(UpdateReport { accepted: false, nis: nis_full, nis_gate, lambda: T::one() });
         }
 
-        // Fading factor: P_{k|k-1} <- Lambda^1/2 P Lambda^1/2, Lambda = lambda on the states of
-        // `noise.fading_mask` (all states when 0), 1 elsewhere. The scaled factor is
+        // Fading factor (adapt module doc): its statistics are computed here and stored with the
+        // rest of the step. P_{k|k-1} <- Lambda^1/2 P Lambda^1/2, Lambda = lambda on the states
+        // of `noise.fading_mask` (all states when 0), 1 elsewhere. The scaled factor is
         // Lambda^1/2 L, so the sigma points are re-drawn without a new factorization and the
         // measurement statistics recomputed exactly.
         let mut lambda = T::one();
         let mut p_prior = self.p;
         let mut e = e;
+        let mut fading = FadingStats::of(noise);
         if a.fading {
-            let eet = e * e.transpose();
-            noise.v = if noise.v_k == 0 { eet } else { (noise.v * a.rho + eet) / (T::one() + a.rho) };
-            noise.v_k = noise.v_k.saturating_add(1);
+            fading.observe(&a, &e, &chol_prior);
             let tr_m = pzz.trace();
-            if e.dot(&e) > a.fading_s * s.trace() && tr_m > T::zero() {
-                let ratio = (noise.v - noise.r).trace() / tr_m;
+            if e.dot(&e) > a.fading_s * s.trace() && tr_m > T::zero() && fading.persistent(&a) {
+                let ratio = (fading.v - noise.r).trace() / tr_m;
                 let mut l = if ratio > a.lambda0 { ratio } else { a.lambda0 };
                 if !(l <= a.lambda_max) {
                     l = a.lambda_max;
@@ -419,14 +470,16 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                         p_prior = l_f * l_f.transpose();
                         s = pzz + noise.r;
                         lambda = l;
-                        self.health.fading_events = self.health.fading_events.wrapping_add(1);
                     }
                 }
             }
         }
 
         // Gain K = Pxz S^-1 via Cholesky: K^T = S^-1 Pxz^T.
-        let chol = Cholesky::new(s).ok_or(UkfError::NotPositiveDefinite)?;
+        let Some(chol) = Cholesky::new(s) else {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NotPositiveDefinite);
+        };
         let k: SMatrix<T, N, M> = chol.solve(&pxz.transpose()).transpose();
         let dx = k * e;
         let x_new = X::add(&self.x, &dx);
@@ -443,12 +496,23 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             }
         }
         mirror_lower(&mut p_new);
-        if !all_finite(&x_new) || !all_finite(&p_new) {
+        if !all_finite(&x_new) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         }
-        self.commit_p(p_new)?;
+        let mut l_new = SMatrix::<T, N, N>::zeros();
+        let repaired = self.factor(&mut p_new, &mut l_new)?;
+        // Nothing can fail from here on.
+        self.health.pd_repairs = self.health.pd_repairs.wrapping_add(u32::from(repaired));
+        self.p = p_new;
+        self.l = l_new;
         self.x = x_new;
+        if a.fading {
+            fading.store(noise);
+        }
+        if lambda > T::one() {
+            self.health.fading_events = self.health.fading_events.wrapping_add(1);
+        }
         noise.consecutive_rejects = 0;
         self.health.last_lambda = lambda;
         self.health.updates_accepted = self.health.updates_accepted.wrapping_add(1);
@@ -544,3 +608,15 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         }
     }
 }
+
+#[cfg(test)]
+impl<T: RealField + Copy, const N: usize, const S: usize, X> Ukf<T, N, S, X> {
+    /// Zero the health counters (tests compare everything else bit for bit).
+    pub(crate) fn clear_counters(&mut self) {
+        self.health = UkfHealth::fresh(false);
+    }
+}
+
+#[cfg(test)]
+#[path = "refusal_tests.rs"]
+mod refusal_tests;

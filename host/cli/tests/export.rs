@@ -32,6 +32,7 @@ fn messages() -> Vec<Uplink> {
                 q_diag: [1e-6; 5],
                 r_diag: [1e-3; 4],
                 pd_repairs: 0,
+                cov_unrepairable: 0,
                 gate_rejects: 1,
                 nonfinite_rejects: 0,
                 late_fused: 0,

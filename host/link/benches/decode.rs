@@ -34,6 +34,7 @@ fn message(i: usize) -> Uplink {
             q_diag: [1e-6; 5],
             r_diag: [1e-4; 4],
             pd_repairs: 0,
+            cov_unrepairable: 0,
             gate_rejects: 3,
             nonfinite_rejects: 0,
             late_fused: 0,

@@ -45,6 +45,7 @@ fn message(r: &mut Rng) -> Uplink {
             q_diag: [r.f(); 5],
             r_diag: [r.f(); 4],
             pd_repairs: r.next() as u32,
+            cov_unrepairable: 0,
             gate_rejects: 3,
             nonfinite_rejects: 0,
             late_fused: 0,

@@ -65,6 +65,16 @@ pub enum Sub {
         /// AUKF without the fading factor (Sage-Husa R only).
         #[arg(long)]
         no_fading: bool,
+        /// AUKF with the seed's fading factor: its divergence test alone, without the
+        /// persistence test on the innovation mean (`subnav_core::ukf::adapt`).
+        #[arg(long, conflicts_with = "no_fading")]
+        seed_fading: bool,
+        /// A step in the z gyro bias, rad/s (genuine state divergence; none by default).
+        #[arg(long, allow_hyphen_values = true, value_parser = args::f64_in(-1.0..=1.0))]
+        gyro_step_radps: Option<f64>,
+        /// Time of the gyro bias step, s.
+        #[arg(long, allow_hyphen_values = true, default_value_t = 300.0, value_parser = args::f64_in(0.0..=args::MAX_SIM_DURATION_S))]
+        gyro_step_at_s: f64,
         /// Sage-Husa forgetting factor b of the AUKF, in (0, 1).
         #[arg(long)]
         b: Option<f32>,
@@ -135,12 +145,16 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Sub::MonteCarlo { seeds, threads, duration_s, no_fading, b } => {
+        Sub::MonteCarlo { seeds, threads, duration_s, no_fading, seed_fading, gyro_step_radps, gyro_step_at_s, b } => {
             let (runs, first_seed) = (seeds.count, seeds.first);
-            let cfg = sim::DiveConfig { duration_s, ..sim::DiveConfig::default() };
+            let gyro_bias_step = gyro_step_radps.map(|bz| (gyro_step_at_s, [0.0, 0.0, bz]));
+            let cfg = sim::DiveConfig { duration_s, gyro_bias_step, ..sim::DiveConfig::default() };
             let started = std::time::Instant::now();
             let mut aukf = NavConfig::default().adaptive();
             aukf.ukf.adapt.fading = !no_fading;
+            if seed_fading {
+                aukf.ukf.adapt.fading_persist = 0.0;
+            }
             if let Some(b) = b {
                 anyhow::ensure!(b > 0.0 && b < 1.0, "--b must be in (0, 1)");
                 aukf.ukf.adapt.b = b;

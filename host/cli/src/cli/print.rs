@@ -68,12 +68,13 @@ pub fn text(m: &Uplink) -> String {
             c.no_fix_reason
         ),
         Uplink::Health(h) => format!(
-            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} gate_rejects={} nonfinite={} late_fused={} late_refused={}",
+            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} cov_unrepairable={} gate_rejects={} nonfinite={} late_fused={} late_refused={}",
             secs(h.t_us),
             h.cpu_load_permille as f32 / 10.0,
             h.lambda,
             h.nis,
             h.pd_repairs,
+            h.cov_unrepairable,
             h.gate_rejects,
             h.nonfinite_rejects,
             h.late_fused,

@@ -102,6 +102,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("q_diag", arr(5)),
                 ("r_diag", arr(4)),
                 ("pd_repairs", int()),
+                ("cov_unrepairable", int()),
                 ("gate_rejects", int()),
                 ("nonfinite_rejects", int()),
                 ("late_fused", int()),

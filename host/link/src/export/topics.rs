@@ -227,8 +227,8 @@ impl Projector {
                     json!({
                         "timestamp": stamp(t), "nis": h.nis.map(|x| num(f(x))), "test_ratio": ratio, "lambda": num(f(h.lambda)),
                         "q_diag": h.q_diag.map(|x| num(f(x))), "r_diag": h.r_diag.map(|x| num(f(x))),
-                        "gate_rejects": h.gate_rejects, "pd_repairs": h.pd_repairs, "nonfinite_rejects": h.nonfinite_rejects,
-                        "cpu_load_permille": h.cpu_load_permille,
+                        "gate_rejects": h.gate_rejects, "pd_repairs": h.pd_repairs, "cov_unrepairable": h.cov_unrepairable,
+                        "nonfinite_rejects": h.nonfinite_rejects, "cpu_load_permille": h.cpu_load_permille,
                     }),
                 );
             }
@@ -397,7 +397,7 @@ fn health_summary_schema() -> Value {
         "subnav.HealthSummary",
         json!({
             "timestamp": time_schema(), "nis": narr(4), "test_ratio": narr(4), "lambda": n(), "q_diag": narr(5), "r_diag": narr(4),
-            "gate_rejects": int, "pd_repairs": int, "nonfinite_rejects": int, "cpu_load_permille": int,
+            "gate_rejects": int, "pd_repairs": int, "cov_unrepairable": int, "nonfinite_rejects": int, "cpu_load_permille": int,
         }),
     )
 }

@@ -68,6 +68,10 @@ pub struct DiveConfig {
     pub heading_burst: (f64, f64, f64),
     /// DVL noise bursts (start s, end s, multiplier).
     pub dvl_bursts: Vec<(f64, f64, f64)>,
+    /// A step in the gyro bias (time s, step rad/s per body axis), unknown to the filter whose
+    /// bias random walk does not cover it: genuine state divergence, the case the fading
+    /// factor is for.
+    pub gyro_bias_step: Option<(f64, [f64; 3])>,
     /// Truth is recorded at this rate.
     pub truth_hz: f64,
 }
@@ -93,6 +97,7 @@ impl Default for DiveConfig {
             dvl_sigma_mps: 0.02,
             heading_burst: (150.0, 210.0, 10.0),
             dvl_bursts: vec![(300.0, 310.0, 20.0), (450.0, 460.0, 20.0)],
+            gyro_bias_step: None,
             truth_hz: 1.0,
         }
     }
@@ -173,7 +178,10 @@ pub fn generate(cfg: &DiveConfig, seed: u64) -> Dive {
         }
         let (rate_b, vel_b, dvel_b) = (Vector3::new(0.0, 0.0, r), Vector3::new(u, 0.0, w), Vector3::new(0.0, 0.0, wdot));
         let f_b = imu::specific_force_body(Rotation3::from_euler_angles(0.0, 0.0, yaw).matrix(), &rate_b, &vel_b, &dvel_b, &g_ned);
-        let (gyro, accel) = errors.measure(&rate_b, &f_b, &mut rng, DrawOrder::GyroFirst);
+        let (mut gyro, accel) = errors.measure(&rate_b, &f_b, &mut rng, DrawOrder::GyroFirst);
+        if let Some((_, step)) = cfg.gyro_bias_step.filter(|(t_step, _)| t >= *t_step) {
+            gyro += Vector3::from(step);
+        }
         events.push(Event::Imu(ImuSample {
             t_us,
             gyro_radps: [0, 1, 2].map(|i| gyro[i] as f32),
