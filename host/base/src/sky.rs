@@ -506,8 +506,13 @@ pub fn counts<R: Rng, F: LightField + ?Sized>(
     err: &SensorErrors,
     rng: &mut R,
 ) -> Vec<[i16; CHANNELS]> {
+    counts_from_stokes(&unit_stokes(field, r_nb, units), field.light_level(), true_cal, err, rng)
+}
+
+/// Stokes (S0, S1, S2) each unit sees (its own frame) for a field and a body attitude.
+pub fn unit_stokes<F: LightField + ?Sized>(field: &F, r_nb: &Rotation3<f64>, units: &[UnitModel]) -> Vec<[f64; 3]> {
     let v3 = |x: [f32; 3]| Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
-    let stokes_all: Vec<[f64; 3]> = units
+    units
         .iter()
         .map(|u| {
             let d = r_nb * v3(u.view_body);
@@ -515,11 +520,22 @@ pub fn counts<R: Rng, F: LightField + ?Sized>(
             let b = d.cross(&a);
             stokes(&field.radiance(d), &a, &b)
         })
-        .collect();
+        .collect()
+}
+
+/// Raw counts from the units' Stokes: auto-exposure to the brightest unit (as far as the
+/// exposure can stretch at `light_level`), the true channel calibrations, shot and read noise,
+/// 16-bit quantization.
+pub fn counts_from_stokes<R: Rng>(
+    stokes_all: &[[f64; 3]],
+    light_level: f64,
+    true_cal: &[[ChannelCal; CHANNELS]],
+    err: &SensorErrors,
+    rng: &mut R,
+) -> Vec<[i16; CHANNELS]> {
     let max_s0 = stokes_all.iter().map(|s| s[0]).fold(0.0, f64::max);
-    // Auto-exposure to the brightest unit, as far as the exposure can stretch (a clear day's
-    // light level is the 1 of `light_level`).
-    let stretch = (field.light_level() * MAX_EXPOSURE_STRETCH).min(1.0);
+    // A clear day's light level is the 1 of `light_level`.
+    let stretch = (light_level * MAX_EXPOSURE_STRETCH).min(1.0);
     let scale = if max_s0 > 0.0 { err.exposure_counts / max_s0 * stretch } else { 0.0 };
     let read = Normal::new(0.0, err.read_sigma_counts.max(0.0)).unwrap_or(Normal::new(0.0, 0.0).expect("zero sigma"));
     stokes_all
