@@ -137,6 +137,10 @@ pub struct Estimator {
     last_gyro_radps: [f32; 3],
     /// DVL velocities fused (accepted by the gate) since boot.
     pub dvl_fused: u32,
+    /// The compass's wave-error tracker (`compass::WaveSigma`), its heading reference carried by
+    /// the gyro's turn about the vertical between fixes, and the last IMU time.
+    wave: compass::WaveSigma,
+    last_imu_us: Option<u64>,
     /// The IMU's calibration (stored record), applied to every sample first.
     imu_correction: Option<crate::calibration::ImuCorrection>,
     /// Where the DVL sits and its scale factor (stored record, else the head's nominal).
@@ -171,6 +175,8 @@ impl Estimator {
             last_gyro_radps: [0.0; 3],
             dvl_fused: 0,
             imu_correction: None,
+            wave: compass::WaveSigma::default(),
+            last_imu_us: None,
             dvl_mounting: head::dvl_mounting(),
             dvl_scale: 1.0,
         }
@@ -216,6 +222,8 @@ impl Estimator {
         self.gyro_bias_align = [0.0; 3];
         self.input_rejects = 0;
         self.last_gyro_radps = [0.0; 3];
+        self.wave.reset();
+        self.last_imu_us = None;
     }
 
     pub fn mode(&self) -> NavMode {
@@ -239,6 +247,7 @@ impl Estimator {
             for (lp, v) in self.accel_lp.iter_mut().zip(s.accel_mps2) {
                 *lp += a * (v - *lp);
             }
+            self.carry_wave_reference(s);
         }
         if let Some(nav) = self.nav.as_mut().filter(|_| self.running) {
             let mut c = *s;
@@ -300,6 +309,31 @@ impl Estimator {
         Ok(())
     }
 
+    /// Turns the wave tracker's heading reference by the body's rotation about the vertical
+    /// since the last sample: `(gyro - at-rest bias) . down * dt`, down from the low-passed
+    /// specific force (at rest it reads -g: it points up).
+    fn carry_wave_reference(&mut self, s: &ImuSample) {
+        let dt_s = match self.last_imu_us {
+            Some(t0) if s.t_us > t0 && s.t_us - t0 < 100_000 => (s.t_us - t0) as f32 * 1e-6,
+            _ => 0.0,
+        };
+        self.last_imu_us = Some(s.t_us);
+        let f = self.accel_lp;
+        let n = libm::sqrtf(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        if dt_s > 0.0 && n > 1.0 {
+            let mut rate = 0.0;
+            for ((g, b), fk) in s.gyro_radps.iter().zip(self.gyro_bias_align).zip(f) {
+                rate -= (g - b) * fk / n;
+            }
+            self.wave.rotate(rate * dt_s);
+        }
+    }
+
+    /// The compass's wave-error tracker (its wave part is in every fix's sigma).
+    pub fn wave(&self) -> &compass::WaveSigma {
+        &self.wave
+    }
+
     /// The IMU read failed at `t_us` (bus error, stuck axis): coast the filter once the gap
     /// exceeds `COAST_AFTER_US` (degraded mode, see `NavFilter::coast`). Not inlined: the
     /// coast's temporaries would otherwise sit in the scheduler's frame on every tick.
@@ -340,9 +374,17 @@ impl Estimator {
             delta_t_s: utc_unix_us.map(delta_t_estimate_s).unwrap_or(69.0),
         };
         // Too few units is reported by the solver as a NoFix reason.
-        let result = compass::solve(&models, &input, &self.compass_cfg);
-        if let Ok(fix) = &result {
-            self.on_heading_fix(t_us, fix.heading_rad, fix.sigma_heading_rad);
+        let mut result = compass::solve(&models, &input, &self.compass_cfg);
+        if let Ok(fix) = result.as_mut() {
+            // The reported sigma includes the waves' part; the filter takes each fix as
+            // independent, so it gets that part inflated for the fixes' correlation.
+            let solver_sigma = fix.sigma_heading_rad;
+            let sigma = self.wave.update(t_us, fix.heading_rad, solver_sigma);
+            if sigma.is_finite() {
+                fix.sigma_heading_rad = sigma;
+            }
+            let for_filter = self.wave.sigma_for_filter_rad(solver_sigma);
+            self.on_heading_fix(t_us, fix.heading_rad, if for_filter.is_finite() { for_filter } else { solver_sigma });
         }
         compass::report(t_us, &result)
     }
