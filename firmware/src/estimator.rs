@@ -141,6 +141,9 @@ pub struct Estimator {
     /// the gyro's turn about the vertical between fixes, and the last IMU time.
     wave: compass::WaveSigma,
     last_imu_us: Option<u64>,
+    /// Give the filter the wave part (default); off: the solver's sigma only, as before the
+    /// tracker (for comparison runs).
+    wave_sigma: bool,
     /// The IMU's calibration (stored record), applied to every sample first.
     imu_correction: Option<crate::calibration::ImuCorrection>,
     /// Where the DVL sits and its scale factor (stored record, else the head's nominal).
@@ -177,6 +180,7 @@ impl Estimator {
             imu_correction: None,
             wave: compass::WaveSigma::default(),
             last_imu_us: None,
+            wave_sigma: true,
             dvl_mounting: head::dvl_mounting(),
             dvl_scale: 1.0,
         }
@@ -329,6 +333,12 @@ impl Estimator {
         }
     }
 
+    /// Whether the filter gets the compass's wave part (default on; off for comparison runs:
+    /// the solver's sigma only). The compass report carries the wave part either way.
+    pub fn set_wave_sigma(&mut self, on: bool) {
+        self.wave_sigma = on;
+    }
+
     /// The compass's wave-error tracker (its wave part is in every fix's sigma).
     pub fn wave(&self) -> &compass::WaveSigma {
         &self.wave
@@ -383,7 +393,7 @@ impl Estimator {
             if sigma.is_finite() {
                 fix.sigma_heading_rad = sigma;
             }
-            let for_filter = self.wave.sigma_for_filter_rad(solver_sigma);
+            let for_filter = if self.wave_sigma { self.wave.sigma_for_filter_rad(solver_sigma) } else { solver_sigma };
             self.on_heading_fix(t_us, fix.heading_rad, if for_filter.is_finite() { for_filter } else { solver_sigma });
         }
         compass::report(t_us, &result)

@@ -150,7 +150,9 @@ pub struct CompassConfig {
     /// Largest allowed |measured in-air elevation - ephemeris elevation| (rad). Skylight pulls
     /// the measured sun toward the zenith (it adds e-vectors perpendicular to the vertical
     /// planes): by 3 deg with the sun at 50 deg and 10 deg at 25 deg under a clear sky in the
-    /// simulator's sea model, so the bound is 14 deg; the azimuth is not biased by it.
+    /// simulator's sea model, so a low sun under a clear sky gives `Inconsistent`. A 14 deg
+    /// bound was tried: the 4-unit head's dive compass RMSE went from about 0.3 to 3-5 deg
+    /// (wrong fixes the check had been refusing), so it stays at 6 deg.
     pub max_elevation_mismatch_rad: f32,
     /// Accepted |accel| / g0 range.
     pub gravity_tolerance: f32,
@@ -170,7 +172,7 @@ impl Default for CompassConfig {
             max_water_elevation_rad: 85.0 * DEG,
             min_sun_elevation_rad: 3.0 * DEG,
             max_sun_elevation_rad: 87.0 * DEG,
-            max_elevation_mismatch_rad: 14.0 * DEG,
+            max_elevation_mismatch_rad: 6.0 * DEG,
             gravity_tolerance: 0.2,
             tilt_sigma_rad: 0.0,
         }

@@ -156,6 +156,11 @@ pub fn run_native_observed(
     };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
+    // Evaluation switch: SUBNAV_COMPASS_SOLVER_SIGMA=1 gives the filter the compass solver's
+    // sigma without the wave tracker's part (the comparison in docs/PERFORMANCE.md).
+    if std::env::var_os("SUBNAV_COMPASS_SOLVER_SIGMA").is_some_and(|v| v == "1") {
+        app.estimator_mut().set_wave_sigma(false);
+    }
 
     // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
     let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
