@@ -393,8 +393,8 @@ impl Estimator {
             if sigma.is_finite() {
                 fix.sigma_heading_rad = sigma;
             }
-            let for_filter = if self.wave_sigma { self.wave.sigma_for_filter_rad(solver_sigma) } else { solver_sigma };
-            self.on_heading_fix(t_us, fix.heading_rad, if for_filter.is_finite() { for_filter } else { solver_sigma });
+            let wave_var = if self.wave_sigma { self.wave.filter_wave_var_rad2() } else { 0.0 };
+            self.on_heading_fix_correlated(t_us, fix.heading_rad, solver_sigma, wave_var);
         }
         compass::report(t_us, &result)
     }
@@ -402,13 +402,22 @@ impl Estimator {
     /// A compass heading fix (rad, with the solver's 1-sigma): alignment, filter update, and
     /// heading re-acquisition (see the module doc).
     pub fn on_heading_fix(&mut self, t_us: u64, heading_rad: f32, solver_sigma_rad: f32) {
+        self.on_heading_fix_correlated(t_us, heading_rad, solver_sigma_rad, 0.0);
+    }
+
+    /// As [`Estimator::on_heading_fix`], with the compass's measured correlated error (the wave
+    /// tracker's part, already inflated for its correlation, rad^2). It and the fixed model
+    /// error describe the same slowly varying error, so the larger of the two is used: in a calm
+    /// sea the model term (as before the tracker), in a rough one the measured waves.
+    pub fn on_heading_fix_correlated(&mut self, t_us: u64, heading_rad: f32, solver_sigma_rad: f32, measured_var_rad2: f32) {
         if !(heading_rad.is_finite() && solver_sigma_rad.is_finite()) {
             self.input_rejects = self.input_rejects.wrapping_add(1);
             return;
         }
         let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
         let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
-        let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var);
+        let measured = if measured_var_rad2.is_finite() { measured_var_rad2 } else { 0.0 };
+        let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var.max(measured));
         let Some(nav) = self.nav.as_mut().filter(|_| self.running) else {
             self.align_on_fix(heading_rad, sigma);
             return;

@@ -156,12 +156,17 @@ impl WaveSigma {
         libm::sqrtf(solver_sigma_rad * solver_sigma_rad + self.wave_var_rad2())
     }
 
+    /// The wave part's variance inflated for its correlation (rad^2, module doc).
+    pub fn filter_wave_var_rad2(&self) -> f32 {
+        let rho = self.correlation();
+        let infl = ((1.0 + rho) / (1.0 - rho)).min(self.cfg.max_corr_inflation);
+        self.wave_var_rad2() * infl
+    }
+
     /// 1-sigma for a filter that takes every fix as independent: the wave part inflated for
     /// its correlation (module doc).
     pub fn sigma_for_filter_rad(&self, solver_sigma_rad: f32) -> f32 {
-        let rho = self.correlation();
-        let infl = ((1.0 + rho) / (1.0 - rho)).min(self.cfg.max_corr_inflation);
-        libm::sqrtf(solver_sigma_rad * solver_sigma_rad + self.wave_var_rad2() * infl)
+        libm::sqrtf(solver_sigma_rad * solver_sigma_rad + self.filter_wave_var_rad2())
     }
 
     pub fn fixes(&self) -> u16 {
