@@ -387,4 +387,29 @@ mod tests {
         let r = run(&McConfig { draws: 12, seed: 5, sea: Some(sea), ..McConfig::default() });
         assert_eq!(r.fixes, 12, "{r:?}");
     }
+
+    /// A cloud over the sun (the partly cloudy sky's blocked state: 3 % of the direct beam, a
+    /// bright diffuse sky) under a 5 m/s sea: no heading, with the reason, at every attempt.
+    #[test]
+    fn blocked_sun_gives_no_fix() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let units = sim::default_units(8);
+        let ccfg = compass_config(&Water::clear(), 0.0);
+        let sea = Sea::new(SeaConfig::wind(5.0), 3);
+        let blocked = SkyKind::PartlyCloudy.light(0.0, 0);
+        let blocked = subnav_base::sky::SkyLight { direct: 0.03, ..blocked };
+        for k in 0..20 {
+            let (t, obs, p) = draw_sun(&mut rng, 20.0, 60.0);
+            let r_nb = Rotation3::from_euler_angles(0.05, -0.03, 0.3 * k as f64);
+            let field = SeaField::new(sun_ned(&p), blocked, &sea, Water::clear(), 10.0, (0.0, 0.0), k as f64);
+            let cal: Vec<_> = units.iter().map(|u| u.channels).collect();
+            let counts = sim::counts(&field, &r_nb, &units, &cal, &SensorErrors::default(), &mut rng);
+            let accel = sim::accel(&r_nb, 0.0, &mut rng);
+            let input = CompassInput { counts: &counts, accel_body_mps2: accel, unix_us: Some(t), observer: Some(obs), delta_t_s: 69.0 };
+            match compass::solve(&units, &input, &ccfg) {
+                Ok(f) => panic!("a heading under a cloud: {f:?}"),
+                Err((r, _)) => assert!(matches!(r, compass::NoFix::NoSunDisc | compass::NoFix::LowDolp | compass::NoFix::Inconsistent), "{r:?}"),
+            }
+        }
+    }
 }
