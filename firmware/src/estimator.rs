@@ -315,10 +315,12 @@ impl Estimator {
 
     /// Turns the wave tracker's heading reference by the body's rotation about the vertical
     /// since the last sample: `(gyro - at-rest bias) . down * dt`, down from the low-passed
-    /// specific force (at rest it reads -g: it points up).
+    /// specific force (at rest it reads -g: it points up). During the alignment the head is at
+    /// rest and the gyro's bias is not yet known: the reference stays (a MEMS gyro's turn-on
+    /// bias would turn it by degrees and read as waves).
     fn carry_wave_reference(&mut self, s: &ImuSample) {
         let dt_s = match self.last_imu_us {
-            Some(t0) if s.t_us > t0 && s.t_us - t0 < 100_000 => (s.t_us - t0) as f32 * 1e-6,
+            Some(t0) if self.running && s.t_us > t0 && s.t_us - t0 < 100_000 => (s.t_us - t0) as f32 * 1e-6,
             _ => 0.0,
         };
         self.last_imu_us = Some(s.t_us);
