@@ -141,8 +141,9 @@ pub struct Estimator {
     /// the gyro's turn about the vertical between fixes, and the last IMU time.
     wave: compass::WaveSigma,
     last_imu_us: Option<u64>,
-    /// Give the filter the wave part (default); off: the solver's sigma only, as before the
-    /// tracker (for comparison runs).
+    /// Give the filter the wave part; off (default): the solver's sigma and the model error
+    /// only, which measured better in the sea dives (docs/PERFORMANCE.md); the report carries
+    /// the wave part either way.
     wave_sigma: bool,
     /// The IMU's calibration (stored record), applied to every sample first.
     imu_correction: Option<crate::calibration::ImuCorrection>,
@@ -180,7 +181,7 @@ impl Estimator {
             imu_correction: None,
             wave: compass::WaveSigma::default(),
             last_imu_us: None,
-            wave_sigma: true,
+            wave_sigma: false,
             dvl_mounting: head::dvl_mounting(),
             dvl_scale: 1.0,
         }
@@ -335,8 +336,8 @@ impl Estimator {
         }
     }
 
-    /// Whether the filter gets the compass's wave part (default on; off for comparison runs:
-    /// the solver's sigma only). The compass report carries the wave part either way.
+    /// Whether the filter gets the compass's wave part (default off: the solver's sigma and the
+    /// model error). The compass report carries the wave part either way.
     pub fn set_wave_sigma(&mut self, on: bool) {
         self.wave_sigma = on;
     }

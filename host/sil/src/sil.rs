@@ -156,10 +156,10 @@ pub fn run_native_observed(
     };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
-    // Evaluation switch: SUBNAV_COMPASS_SOLVER_SIGMA=1 gives the filter the compass solver's
-    // sigma without the wave tracker's part (the comparison in docs/PERFORMANCE.md).
-    if std::env::var_os("SUBNAV_COMPASS_SOLVER_SIGMA").is_some_and(|v| v == "1") {
-        app.estimator_mut().set_wave_sigma(false);
+    // Evaluation switch: SUBNAV_COMPASS_WAVE_SIGMA=1 gives the filter the compass's wave part
+    // (the comparison in docs/PERFORMANCE.md; off by default, as on the boards).
+    if std::env::var_os("SUBNAV_COMPASS_WAVE_SIGMA").is_some_and(|v| v == "1") {
+        app.estimator_mut().set_wave_sigma(true);
     }
 
     // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
