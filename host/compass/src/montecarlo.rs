@@ -222,7 +222,10 @@ fn run_sea(cfg: &McConfig, sr: &SeaRun) -> McResult {
     let yaw_rate = 1f64.to_radians();
     for sess in 0..sessions {
         let (t0, obs, _) = draw_sun(&mut rng, lo, hi);
-        let sea = Sea::new(SeaConfig { wind_toward_rad: rng.random_range(0.0..std::f64::consts::TAU), ..SeaConfig::wind(sr.wind_mps) }, rng.random());
+        let sea = Sea::new(
+            SeaConfig { wind_toward_rad: rng.random_range(0.0..std::f64::consts::TAU), ..SeaConfig::wind(sr.wind_mps) },
+            rng.random(),
+        );
         let mt = cfg.max_tilt_deg.to_radians();
         let (roll, pitch, yaw0) = (rng.random_range(-mt..=mt), rng.random_range(-mt..=mt), rng.random_range(0.0..std::f64::consts::TAU));
         let cal: Vec<_> = units.iter().map(|u| sim::true_channels(u, &cfg.errors, &mut rng)).collect();
@@ -381,7 +384,9 @@ mod tests {
             assert_eq!(r.fixes, 0, "{sky}: {r:?}");
             let reasons: Vec<&String> = r.no_fix.keys().collect();
             assert!(
-                r.no_fix.keys().all(|k| ["NoSunDisc", "LowDolp", "SunBelowHorizon", "Dark", "OutsideSnellWindow", "Inconsistent"].contains(&k.as_str())),
+                r.no_fix.keys().all(
+                    |k| ["NoSunDisc", "LowDolp", "SunBelowHorizon", "Dark", "OutsideSnellWindow", "Inconsistent"].contains(&k.as_str())
+                ),
                 "{sky}: {reasons:?}"
             );
         }
@@ -410,7 +415,9 @@ mod tests {
             let input = CompassInput { counts: &counts, accel_body_mps2: accel, unix_us: Some(t), observer: Some(obs), delta_t_s: 69.0 };
             match compass::solve(&units, &input, &ccfg) {
                 Ok(f) => panic!("a heading under a cloud: {f:?}"),
-                Err((r, _)) => assert!(matches!(r, compass::NoFix::NoSunDisc | compass::NoFix::LowDolp | compass::NoFix::Inconsistent), "{r:?}"),
+                Err((r, _)) => {
+                    assert!(matches!(r, compass::NoFix::NoSunDisc | compass::NoFix::LowDolp | compass::NoFix::Inconsistent), "{r:?}")
+                }
             }
         }
     }

@@ -141,7 +141,14 @@ impl PolarizationSource {
     }
 
     /// Counts of unit `u` at `t_us` (its own noise from `rng`).
-    pub fn unit_counts(&self, u: usize, t_us: u64, true_cal: &[[ChannelCal; CHANNELS]], err: &SensorErrors, rng: &mut ChaCha8Rng) -> Option<[i16; 4]> {
+    pub fn unit_counts(
+        &self,
+        u: usize,
+        t_us: u64,
+        true_cal: &[[ChannelCal; CHANNELS]],
+        err: &SensorErrors,
+        rng: &mut ChaCha8Rng,
+    ) -> Option<[i16; 4]> {
         let (s, level) = self.stokes(t_us, rng);
         let all = polar::counts_from_stokes(&s, level, true_cal, err, rng);
         all.get(u).copied()
@@ -154,7 +161,8 @@ mod tests {
 
     #[test]
     fn plan_changes_and_validation() {
-        let p = SeaPlan { wind_mps: 2.0, wind_change: Some((100.0, 10.0)), sky_change: Some((50.0, SkyKind::Overcast)), ..SeaPlan::default() };
+        let p =
+            SeaPlan { wind_mps: 2.0, wind_change: Some((100.0, 10.0)), sky_change: Some((50.0, SkyKind::Overcast)), ..SeaPlan::default() };
         assert_eq!((p.wind_at(99.0), p.wind_at(100.0)), (2.0, 10.0));
         assert_eq!((p.sky_at(49.0), p.sky_at(50.0)), (SkyKind::Clear, SkyKind::Overcast));
         assert!(p.validate().is_ok());

@@ -220,7 +220,11 @@ fn envelope(args: &EnvelopeArgs, format: Format) -> Result<ExitCode> {
 /// Two rows of panels, one column per sunlit sky and turbidity: heading RMSE (log scale) and
 /// the fraction within 2 reported sigma against wind, one line per depth. Skies without a
 /// fix anywhere (overcast, twilight) are in the table only.
-fn envelope_png(path: &std::path::Path, cells: &[subnav_compass::envelope::Cell], cfg: &subnav_compass::envelope::EnvelopeConfig) -> Result<()> {
+fn envelope_png(
+    path: &std::path::Path,
+    cells: &[subnav_compass::envelope::Cell],
+    cfg: &subnav_compass::envelope::EnvelopeConfig,
+) -> Result<()> {
     use plotters::prelude::*;
     let text = subnav_report::plot::font_ok();
     let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("plotting: {e}");

@@ -197,7 +197,13 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
         sc.survey.heading0_rad = h.to_radians();
     }
     sc.turbidity = a.turbidity;
-    sc.sea = subnav_sil::SeaPlan { wind_mps: a.wind_mps, sky: a.sky, wind_change: a.wind_change, sky_change: a.sky_change, ..Default::default() };
+    sc.sea = subnav_sil::SeaPlan {
+        wind_mps: a.wind_mps,
+        sky: a.sky,
+        wind_change: a.wind_change,
+        sky_change: a.sky_change,
+        ..Default::default()
+    };
     sc.imu_noise_scale = a.imu_noise_scale;
     sc.position_fixes = (!a.no_fixes).then_some(FixPlan {
         period_s: a.fix_period_s,
