@@ -49,9 +49,9 @@ fn compass_errors() {
     assert_distinct_messages("ModelError", &[&ModelError::BadGeometry, &ModelError::Singular, &ModelError::BadCalibration]);
     use UnitReject::*;
     assert_distinct_messages("UnitReject", &[&Saturated, &Dark, &LowDolp, &NonFinite]);
-    // Every telemetry code 1..=15 is a variant (from_code), so this covers all of NoFix.
+    // Every telemetry code 1..=16 is a variant (from_code), so this covers all of NoFix.
     let all: Vec<NoFix> = (1..=u8::MAX).filter_map(NoFix::from_code).collect();
-    assert_eq!(all.len(), 15, "NoFix variants");
+    assert_eq!(all.len(), 16, "NoFix variants");
     let refs: Vec<&dyn core::error::Error> = all.iter().map(|e| e as &dyn core::error::Error).collect();
     assert_distinct_messages("NoFix", &refs);
 }

@@ -218,6 +218,11 @@ impl App {
         &self.estimator
     }
 
+    /// The estimator, to change its evaluation switches (e.g. `Estimator::set_wave_sigma`).
+    pub fn estimator_mut(&mut self) -> &mut Estimator {
+        &mut self.estimator
+    }
+
     /// UTC now, if the host has set the time.
     fn utc_unix_us(&self, t_us: u64) -> Option<i64> {
         self.utc_offset_us.and_then(|o| i64::try_from(t_us).ok().map(|t| t.saturating_add(o)))

@@ -137,6 +137,14 @@ pub struct Estimator {
     last_gyro_radps: [f32; 3],
     /// DVL velocities fused (accepted by the gate) since boot.
     pub dvl_fused: u32,
+    /// The compass's wave-error tracker (`compass::WaveSigma`), its heading reference carried by
+    /// the gyro's turn about the vertical between fixes, and the last IMU time.
+    wave: compass::WaveSigma,
+    last_imu_us: Option<u64>,
+    /// Give the filter the wave part; off (default): the solver's sigma and the model error
+    /// only, which measured better in the sea dives (docs/PERFORMANCE.md); the report carries
+    /// the wave part either way.
+    wave_sigma: bool,
     /// The IMU's calibration (stored record), applied to every sample first.
     imu_correction: Option<crate::calibration::ImuCorrection>,
     /// Where the DVL sits and its scale factor (stored record, else the head's nominal).
@@ -171,6 +179,9 @@ impl Estimator {
             last_gyro_radps: [0.0; 3],
             dvl_fused: 0,
             imu_correction: None,
+            wave: compass::WaveSigma::default(),
+            last_imu_us: None,
+            wave_sigma: false,
             dvl_mounting: head::dvl_mounting(),
             dvl_scale: 1.0,
         }
@@ -216,6 +227,8 @@ impl Estimator {
         self.gyro_bias_align = [0.0; 3];
         self.input_rejects = 0;
         self.last_gyro_radps = [0.0; 3];
+        self.wave.reset();
+        self.last_imu_us = None;
     }
 
     pub fn mode(&self) -> NavMode {
@@ -239,6 +252,7 @@ impl Estimator {
             for (lp, v) in self.accel_lp.iter_mut().zip(s.accel_mps2) {
                 *lp += a * (v - *lp);
             }
+            self.carry_wave_reference(s);
         }
         if let Some(nav) = self.nav.as_mut().filter(|_| self.running) {
             let mut c = *s;
@@ -300,6 +314,39 @@ impl Estimator {
         Ok(())
     }
 
+    /// Turns the wave tracker's heading reference by the body's rotation about the vertical
+    /// since the last sample: `(gyro - at-rest bias) . down * dt`, down from the low-passed
+    /// specific force (at rest it reads -g: it points up). During the alignment the head is at
+    /// rest and the gyro's bias is not yet known: the reference stays (a MEMS gyro's turn-on
+    /// bias would turn it by degrees and read as waves).
+    fn carry_wave_reference(&mut self, s: &ImuSample) {
+        let dt_s = match self.last_imu_us {
+            Some(t0) if self.running && s.t_us > t0 && s.t_us - t0 < 100_000 => (s.t_us - t0) as f32 * 1e-6,
+            _ => 0.0,
+        };
+        self.last_imu_us = Some(s.t_us);
+        let f = self.accel_lp;
+        let n = libm::sqrtf(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        if dt_s > 0.0 && n > 1.0 {
+            let mut rate = 0.0;
+            for ((g, b), fk) in s.gyro_radps.iter().zip(self.gyro_bias_align).zip(f) {
+                rate -= (g - b) * fk / n;
+            }
+            self.wave.rotate(rate * dt_s);
+        }
+    }
+
+    /// Whether the filter gets the compass's wave part (default off: the solver's sigma and the
+    /// model error). The compass report carries the wave part either way.
+    pub fn set_wave_sigma(&mut self, on: bool) {
+        self.wave_sigma = on;
+    }
+
+    /// The compass's wave-error tracker (its wave part is in every fix's sigma).
+    pub fn wave(&self) -> &compass::WaveSigma {
+        &self.wave
+    }
+
     /// The IMU read failed at `t_us` (bus error, stuck axis): coast the filter once the gap
     /// exceeds `COAST_AFTER_US` (degraded mode, see `NavFilter::coast`). Not inlined: the
     /// coast's temporaries would otherwise sit in the scheduler's frame on every tick.
@@ -340,9 +387,17 @@ impl Estimator {
             delta_t_s: utc_unix_us.map(delta_t_estimate_s).unwrap_or(69.0),
         };
         // Too few units is reported by the solver as a NoFix reason.
-        let result = compass::solve(&models, &input, &self.compass_cfg);
-        if let Ok(fix) = &result {
-            self.on_heading_fix(t_us, fix.heading_rad, fix.sigma_heading_rad);
+        let mut result = compass::solve(&models, &input, &self.compass_cfg);
+        if let Ok(fix) = result.as_mut() {
+            // The reported sigma includes the waves' part; the filter takes each fix as
+            // independent, so it gets that part inflated for the fixes' correlation.
+            let solver_sigma = fix.sigma_heading_rad;
+            let sigma = self.wave.update(t_us, fix.heading_rad, solver_sigma);
+            if sigma.is_finite() {
+                fix.sigma_heading_rad = sigma;
+            }
+            let wave_var = if self.wave_sigma { self.wave.filter_wave_var_rad2() } else { 0.0 };
+            self.on_heading_fix_correlated(t_us, fix.heading_rad, solver_sigma, wave_var);
         }
         compass::report(t_us, &result)
     }
@@ -350,13 +405,22 @@ impl Estimator {
     /// A compass heading fix (rad, with the solver's 1-sigma): alignment, filter update, and
     /// heading re-acquisition (see the module doc).
     pub fn on_heading_fix(&mut self, t_us: u64, heading_rad: f32, solver_sigma_rad: f32) {
+        self.on_heading_fix_correlated(t_us, heading_rad, solver_sigma_rad, 0.0);
+    }
+
+    /// As [`Estimator::on_heading_fix`], with the compass's measured correlated error (the wave
+    /// tracker's part, already inflated for its correlation, rad^2). It and the fixed model
+    /// error describe the same slowly varying error, so the larger of the two is used: in a calm
+    /// sea the model term (as before the tracker), in a rough one the measured waves.
+    pub fn on_heading_fix_correlated(&mut self, t_us: u64, heading_rad: f32, solver_sigma_rad: f32, measured_var_rad2: f32) {
         if !(heading_rad.is_finite() && solver_sigma_rad.is_finite()) {
             self.input_rejects = self.input_rejects.wrapping_add(1);
             return;
         }
         let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
         let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
-        let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var);
+        let measured = if measured_var_rad2.is_finite() { measured_var_rad2 } else { 0.0 };
+        let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var.max(measured));
         let Some(nav) = self.nav.as_mut().filter(|_| self.running) else {
             self.align_on_fix(heading_rad, sigma);
             return;

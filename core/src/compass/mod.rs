@@ -17,12 +17,14 @@
 pub mod sun_vector;
 pub mod unit;
 pub mod water;
+pub mod wave;
 
 use nalgebra::Vector3;
 
 use crate::ephemeris::{self, Atmosphere, Observer};
 pub use sun_vector::{SolverConfig, SunVector};
 pub use unit::{CHANNELS, ChannelCal, NoiseModel, UnitModel, UnitObservation, UnitReject};
+pub use wave::{WaveSigma, WaveSigmaConfig};
 
 /// Most units one solve accepts (fixed-size buffers).
 pub const MAX_UNITS: usize = 16;
@@ -64,6 +66,9 @@ pub enum NoFix {
     NoTime = 14,
     /// The ephemeris refused the time or position.
     Ephemeris = 15,
+    /// The pattern is symmetric about the vertical while the ephemeris sun is well below the
+    /// zenith: no sun disc (overcast, a cloud over the sun).
+    NoSunDisc = 16,
 }
 
 impl core::fmt::Display for NoFix {
@@ -96,6 +101,7 @@ impl NoFix {
             13 => SunBelowHorizon,
             14 => NoTime,
             15 => Ephemeris,
+            16 => NoSunDisc,
             _ => return None,
         })
     }
@@ -117,6 +123,7 @@ impl NoFix {
             SunBelowHorizon => "sun below the minimum elevation",
             NoTime => "UTC time or position unknown (sun vector measured)",
             Ephemeris => "the ephemeris refused the time or position",
+            NoSunDisc => "no sun disc: the pattern is symmetric about the vertical (overcast or a cloud over the sun)",
         }
     }
 }
@@ -140,7 +147,12 @@ pub struct CompassConfig {
     /// Ephemeris (apparent, in air) sun elevation limits for a heading (rad).
     pub min_sun_elevation_rad: f32,
     pub max_sun_elevation_rad: f32,
-    /// Largest allowed |measured in-air elevation - ephemeris elevation| (rad).
+    /// Largest allowed |measured in-air elevation - ephemeris elevation| (rad). Skylight pulls
+    /// the measured sun toward the zenith (it adds e-vectors perpendicular to the vertical
+    /// planes): by 3 deg with the sun at 50 deg and 10 deg at 25 deg under a clear sky in the
+    /// simulator's sea model, so a low sun under a clear sky gives `Inconsistent`. A 14 deg
+    /// bound was tried: the 4-unit head's dive compass RMSE went from about 0.3 to 3-5 deg
+    /// (wrong fixes the check had been refusing), so it stays at 6 deg.
     pub max_elevation_mismatch_rad: f32,
     /// Accepted |accel| / g0 range.
     pub gravity_tolerance: f32,
@@ -353,11 +365,23 @@ pub struct CompassInput<'a> {
 
 /// The whole solve. On `Err`, the sun measurement is returned when it was made (e.g. `NoTime`).
 pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
-    let m = measure_sun(units, input.counts, input.accel_body_mps2, cfg).map_err(|e| (e, None))?;
+    let m = measure_sun(units, input.counts, input.accel_body_mps2, cfg).map_err(|e| match (e, input.unix_us, input.observer) {
+        (NoFix::SunNearZenith, Some(t), Some(o)) if sun_disc_missing(t, &o, input.delta_t_s, cfg) => (NoFix::NoSunDisc, None),
+        _ => (e, None),
+    })?;
     match (input.unix_us, input.observer) {
         (Some(t), Some(o)) => heading(&m, t, &o, input.delta_t_s, cfg).map_err(|e| (e, Some(m))),
         _ => Err((NoFix::NoTime, Some(m))),
     }
+}
+
+/// A measured sun at the zenith while the ephemeris puts the refracted sun at least 10 deg
+/// below the compass's zenith limit: the light comes from the whole sky, not from a sun disc.
+fn sun_disc_missing(unix_us: i64, obs: &Observer, delta_t_s: f32, cfg: &CompassConfig) -> bool {
+    let Ok(eph) = ephemeris::sun_position(unix_us, obs, Some(&Atmosphere::default()), delta_t_s) else { return false };
+    let air_zenith = core::f32::consts::FRAC_PI_2 - eph.apparent_elevation_rad();
+    let water_el = core::f32::consts::FRAC_PI_2 - water::water_zenith_rad(air_zenith.max(0.0), cfg.n_water);
+    water_el < cfg.max_water_elevation_rad - 10.0 * DEG
 }
 
 /// The telemetry message for a solve result.

@@ -170,7 +170,11 @@ fn no_fix_degenerate_geometry() {
 fn no_fix_sun_near_zenith_and_outside_window() {
     let u = units();
     let zen = scene_for(&u, Vector3::new(0.01, 0.0, -1.0).normalize(), 0.0, 0.0, 0.5, 1.0, 1.0, None);
-    assert_eq!(no_fix(run(&u, &zen)), NoFix::SunNearZenith);
+    // Without the time the zenith pattern is only a sun near the zenith; with the ephemeris sun
+    // well below the zenith it is a sky without a sun disc (overcast, a cloud over the sun).
+    let no_time = CompassInput { counts: &zen.counts, accel_body_mps2: zen.accel, unix_us: None, observer: None, delta_t_s: 70.0 };
+    assert_eq!(no_fix(solve(&u, &no_time, &cfg())), NoFix::SunNearZenith);
+    assert_eq!(no_fix(run(&u, &zen)), NoFix::NoSunDisc);
     // A "sun" 10 deg above the horizon in water cannot be refracted sunlight.
     let low = scene_for(&u, Vector3::new(0.985, 0.0, -0.174), 0.0, 0.0, 0.5, 1.0, 1.0, None);
     assert_eq!(no_fix(run(&u, &low)), NoFix::OutsideSnellWindow);
@@ -207,13 +211,13 @@ fn no_fix_time_night_tilt() {
 
 #[test]
 fn codes_round_trip_and_report() {
-    for c in 1..=15u8 {
+    for c in 1..=16u8 {
         let r = NoFix::from_code(c).unwrap();
         assert_eq!(r.code(), c);
         assert!(!r.describe().is_empty());
     }
     assert_eq!(NoFix::from_code(0), None);
-    assert_eq!(NoFix::from_code(16), None);
+    assert_eq!(NoFix::from_code(17), None);
     let u = units();
     let sc = scene(&u, 0.0, 0.0, 1.0, 1.0, 1.0, None);
     let fix = run(&u, &sc);

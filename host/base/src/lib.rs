@@ -5,6 +5,7 @@
 //!   truth, the lawnmower turn schedule, the IMU error model from a grade, the host `ImuSample`.
 //! - [`sky`]: the polarized sky and water seen by the compass units (sensor grades from
 //!   `subnav_core::head`).
+//! - [`sea`]: the moving wind-driven sea surface (Elfouhaily spectrum, Cox-Munk slopes).
 //! - [`so3`]: SO(3) helpers in f64 (exponential, logarithm, hat, Jacobians).
 //! - [`chi2`]: the chi-square CDF and quantile for the gates.
 //! - [`limits`]: size limits on what a file can make the host allocate (images, tables).
@@ -12,6 +13,7 @@
 pub mod chi2;
 pub mod imu;
 pub mod limits;
+pub mod sea;
 pub mod sky;
 pub mod so3;
 pub mod trajectory;

@@ -27,6 +27,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("compass simulate", "Heading Monte Carlo"),
     ("compass geolocate", "geolocation"),
     ("compass csv", "CSV of raw channel counts"),
+    ("compass envelope", "operating envelope"),
     ("record", "Record telemetry"),
     ("export", "Export a recording"),
     ("sim", "simulated dive scenario"),

@@ -1,7 +1,9 @@
-//! Host side of the polarization compass (issue 3): the physically based underwater
-//! polarization-field and sensor simulator ([`sim`]), the heading Monte Carlo ([`montecarlo`])
-//! and sun-based geolocation ([`geoloc`]). The compass itself is `subnav_core::compass`, the
-//! same code the firmware runs.
+//! Host side of the polarization compass: the heading Monte Carlo ([`montecarlo`]: flat
+//! surface, or a moving sea under a sky), the operating envelope over depth, wind, turbidity
+//! and sky ([`envelope`]) and sun-based geolocation ([`geoloc`]). The field and sensor
+//! simulator is `subnav_base::sky` (with the sea of `subnav_base::sea`); the compass itself is
+//! `subnav_core::compass`, the same code the firmware runs.
 
+pub mod envelope;
 pub mod geoloc;
 pub mod montecarlo;

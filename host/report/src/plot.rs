@@ -32,7 +32,8 @@ pub const FIGURES: [(&str, &str, Draw); 5] = [
     ("faults", "Sensor and link faults over time (one row per source/kind).", faults),
 ];
 
-fn font_ok() -> bool {
+/// Registers a TrueType font for the figures' text (false: none found, draw without text).
+pub fn font_ok() -> bool {
     static OK: OnceLock<bool> = OnceLock::new();
     *OK.get_or_init(|| {
         let mut paths: Vec<String> = std::env::var("SUBNAV_FONT").into_iter().collect();

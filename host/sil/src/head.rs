@@ -13,7 +13,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::Distribution;
@@ -27,7 +27,7 @@ use crate::chips::dvl_a50::{DvlA50Model, DvlFaults, DvlGrade, DvlInput, DvlMount
 use crate::chips::modem::{DeliveryTap, ModemModel};
 use crate::chips::{Ads1115Model, ChipSet, Icm42688Model, ImuInput, Ms5837Model, PressureInput};
 use subnav_base::imu::{DrawOrder, ImuErrors, ImuGrade, normal};
-use subnav_base::sky::{self as polar, Field, SensorErrors, Water};
+use subnav_base::sky::{self as polar, SensorErrors, Water};
 use subnav_base::trajectory::{Lawnmower, RigMotion, Trajectory};
 use subnav_link::qemu::BusHandler;
 
@@ -219,6 +219,9 @@ pub struct Scenario {
     /// A calibration rig's motion instead of the survey (`subnav calibrate` records on it).
     #[serde(default)]
     pub rig: Option<RigMotion>,
+    /// Wind, sea and sky, with their changes (default: calm and clear, the flat surface).
+    #[serde(default)]
+    pub sea: crate::sea_sky::SeaPlan,
 }
 
 impl Default for Scenario {
@@ -240,6 +243,7 @@ impl Default for Scenario {
             camera: None,
             build_seed: None,
             rig: None,
+            sea: Default::default(),
         }
     }
 }
@@ -356,6 +360,7 @@ impl Scenario {
         within("survey.rest_s", s.rest_s, 0.0, 3600.0)?;
         within("survey.ramp_s", s.ramp_s, 0.0, 600.0)?;
         positive("turbidity", self.turbidity, 100.0)?;
+        self.sea.validate()?;
         within("imu_noise_scale", self.imu_noise_scale, 0.0, 100.0)?;
         let f = &self.faults;
         window("faults.imu_nack_s", f.imu_nack_s)?;
@@ -655,20 +660,25 @@ impl SimHead {
             true_cal = b.polarization;
         }
         let volts_per_count = 4.096 / 32768.0;
+        let sc_sun = sc.clone();
+        let source = Arc::new(crate::sea_sky::PolarizationSource::new(
+            sc.sea,
+            sc.seed,
+            water,
+            units.clone(),
+            traj.clone(),
+            Box::new(move |t| sc_sun.sun_ned(t)),
+        ));
         for (u, addr) in [0x48u8, 0x49, 0x4A, 0x4B].into_iter().enumerate() {
-            let (units, true_cal, tr, sc2) = (units.clone(), true_cal.clone(), traj.clone(), sc.clone());
+            let (n_units, true_cal, source, sc2) = (units.len(), true_cal.clone(), source.clone(), sc.clone());
             let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ (0x3333 + u as u64));
             let model = Ads1115Model::new(addr, move |t_us| {
                 let t = t_us as f64 * 1e-6;
-                let truth = tr.at(t);
                 let occluded = sc2.faults.occluded_unit.is_some_and(|(a, b, k)| k == u && (a..b).contains(&t));
-                let counts = if occluded || units.len() <= u {
+                let counts = if occluded || n_units <= u {
                     [head::POLARIZATION_OFFSET_COUNTS as f64; 4]
                 } else {
-                    let field = Field::new(sc2.sun_ned(t), water, truth.pos_ned_m.z.max(0.0), &mut rng);
-                    let r_nb: Rotation3<f64> = truth.att_nb.to_rotation_matrix();
-                    let all = polar::counts(&field, &r_nb, &units, &true_cal, &err, &mut rng);
-                    all.get(u).map(|c| c.map(f64::from)).unwrap_or([0.0; 4])
+                    source.unit_counts(u, t_us, &true_cal, &err, &mut rng).map(|c| c.map(f64::from)).unwrap_or([0.0; 4])
                 };
                 counts.map(|c| c * volts_per_count)
             });

@@ -9,6 +9,8 @@ pub mod head;
 pub mod manufacturing;
 pub mod map_loop;
 pub mod replay;
+pub mod sea_sky;
 pub mod sil;
 
 pub use head::{CameraPlan, DvlPlan, FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};
+pub use sea_sky::SeaPlan;

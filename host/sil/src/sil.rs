@@ -182,6 +182,11 @@ fn run_native_on(
     };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
+    // Evaluation switch: SUBNAV_COMPASS_WAVE_SIGMA=1 gives the filter the compass's wave part
+    // (the comparison in docs/PERFORMANCE.md; off by default, as on the boards).
+    if std::env::var_os("SUBNAV_COMPASS_WAVE_SIGMA").is_some_and(|v| v == "1") {
+        app.estimator_mut().set_wave_sigma(true);
+    }
     let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;

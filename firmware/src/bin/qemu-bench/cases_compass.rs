@@ -60,4 +60,14 @@ pub fn run(b: &mut Bench) {
     b.run("compass.solve_8_units_with_ephemeris", 50, || {
         compass::solve(&units, black_box(&input), &cfg).map(|f| f.heading_rad).unwrap_or(-1.0)
     });
+    // The wave tracker's work per fix (on top of the solve): the gyro's turn carried once per
+    // IMU sample, one update and the filter's sigma per fix.
+    let mut wave = compass::WaveSigma::default();
+    let mut k = 0u64;
+    b.run("compass.wave_sigma_update", 200, || {
+        k += 1;
+        wave.rotate(black_box(1e-3));
+        let s = wave.update(k * 100_000, black_box(0.3 + 1e-3 * (k % 7) as f32), 1e-3);
+        s + wave.sigma_for_filter_rad(1e-3)
+    });
 }

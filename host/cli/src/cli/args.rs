@@ -174,6 +174,27 @@ pub fn parse_occlusion(s: &str) -> Result<Occlusion, String> {
     Ok(Occlusion { window: window(f[0], f[1])?, unit: index(f[2], "the unit", 3)? })
 }
 
+/// Parses a sky kind (`clear`, `partly-cloudy`, `overcast`, `twilight`).
+pub fn parse_sky(s: &str) -> Result<subnav_base::sky::SkyKind, String> {
+    subnav_base::sky::SkyKind::parse(s.trim()).ok_or_else(|| {
+        let all: Vec<&str> = subnav_base::sky::SkyKind::ALL.iter().map(|k| k.name()).collect();
+        format!("unknown sky {s:?}: one of {}", all.join(", "))
+    })
+}
+
+/// Parses `T,MPS` (seconds, wind 0..=30 m/s).
+pub fn parse_wind_change(s: &str) -> Result<(f64, f64), String> {
+    let f = fields(s, 2, "T,MPS")?;
+    let w: f64 = f[1].trim().parse().map_err(|_| format!("the wind {:?} is not a number", f[1]))?;
+    Ok((seconds(f[0], "time")?, bounded("the wind (m/s)", w, &(0.0..=30.0))?))
+}
+
+/// Parses `T,KIND` (seconds, a sky kind).
+pub fn parse_sky_change(s: &str) -> Result<(f64, subnav_base::sky::SkyKind), String> {
+    let f = fields(s, 2, "T,KIND")?;
+    Ok((seconds(f[0], "time")?, parse_sky(f[1])?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

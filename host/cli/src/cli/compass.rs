@@ -35,6 +35,9 @@ pub enum Sub {
     Simulate(SimulateArgs),
     /// Sun-track geolocation trials on the simulated sky.
     Geolocate(GeolocateArgs),
+    /// The operating envelope: the moving-sea Monte Carlo over depth x wind x turbidity x sky;
+    /// a PNG figure (heading RMSE and the fraction within 2 reported sigma) and its table.
+    Envelope(EnvelopeArgs),
     /// Run the compass on a CSV of raw channel counts, one solve per row.
     Csv {
         /// The CSV (header, then `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,...`).
@@ -54,9 +57,21 @@ pub struct Sky {
     /// Gravity-vector tilt error, 1-sigma per axis (deg).
     #[arg(long, default_value_t = 0.01)]
     pub tilt_sigma_deg: f64,
-    /// RMS surface slope for a wavy surface (0 = flat; 16 facets per draw when > 0).
+    /// RMS surface slope for a wavy surface (0 = flat; 16 facets per draw when > 0): i.i.d.
+    /// facets, not a moving sea (see --wind-mps).
     #[arg(long, default_value_t = 0.0)]
     pub slope_rms: f64,
+    /// A moving sea under this wind (m/s at 10 m, 0..=30): sessions of fixes over a moving sea
+    /// with the wave tracker's sigma (`subnav_compass::montecarlo::SeaRun`). With --sky.
+    #[arg(long, conflicts_with = "slope_rms", value_parser = super::args::f64_in(0.0..=30.0))]
+    pub wind_mps: Option<f64>,
+    /// The sky over a moving sea: clear, partly-cloudy, overcast, twilight (default clear when
+    /// --wind-mps is given).
+    #[arg(long, conflicts_with = "slope_rms", value_parser = super::args::parse_sky)]
+    pub sky: Option<subnav_base::sky::SkyKind>,
+    /// Water turbidity: the clear water's attenuation and scattering times this (1..=20).
+    #[arg(long, default_value_t = 1.0, value_parser = super::args::f64_in(1.0..=20.0))]
+    pub turbidity: f64,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -101,6 +116,37 @@ pub struct GeolocateArgs {
     pub sky: Sky,
 }
 
+#[derive(Debug, clap::Args)]
+pub struct EnvelopeArgs {
+    /// Scored fixes per cell (1..=100000; sessions of 10).
+    #[arg(long, default_value_t = 100, value_parser = super::args::int_in(1usize..=100_000))]
+    pub draws_per_cell: usize,
+    /// Depths (m, comma-separated, each 0..=1000).
+    #[arg(long, value_delimiter = ',', default_values_t = [2.0, 5.0, 10.0, 20.0, 40.0], value_parser = super::args::f64_in(0.0..=1000.0))]
+    pub depths_m: Vec<f64>,
+    /// Winds (m/s at 10 m, comma-separated, each 0..=30).
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 3.0, 6.0, 9.0, 12.0], value_parser = super::args::f64_in(0.0..=30.0))]
+    pub winds_mps: Vec<f64>,
+    /// Turbidities (comma-separated, each 1..=20).
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0, 3.0], value_parser = super::args::f64_in(1.0..=20.0))]
+    pub turbidities: Vec<f64>,
+    /// Skies (comma-separated: clear, partly-cloudy, overcast, twilight).
+    #[arg(long, value_delimiter = ',', default_value = "clear,partly-cloudy,overcast,twilight", value_parser = super::args::parse_sky)]
+    pub skies: Vec<subnav_base::sky::SkyKind>,
+    /// Write the figure here (PNG).
+    #[arg(long)]
+    pub png: Option<std::path::PathBuf>,
+    /// Write the table here (Markdown).
+    #[arg(long)]
+    pub table: Option<std::path::PathBuf>,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let check = |sky: &Sky| {
         if sky.units < 3 || sky.units > compass::MAX_UNITS {
@@ -122,15 +168,136 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         }
         Sub::Geolocate(a) => {
             check(&a.sky)?;
+            if a.sky.wind_mps.is_some() || a.sky.sky.is_some() {
+                bail!("compass geolocate runs over a flat surface: leave out --wind-mps and --sky");
+            }
             geolocate(&a, format)
         }
         Sub::Csv { file } => from_csv(&file, format),
+        Sub::Envelope(a) => envelope(&a, format),
     }
 }
 
+fn envelope(args: &EnvelopeArgs, format: Format) -> Result<ExitCode> {
+    use subnav_compass::envelope as env;
+    for (what, empty) in [
+        ("--depths-m", args.depths_m.is_empty()),
+        ("--winds-mps", args.winds_mps.is_empty()),
+        ("--turbidities", args.turbidities.is_empty()),
+        ("--skies", args.skies.is_empty()),
+    ] {
+        if empty {
+            bail!("{what} needs at least one value");
+        }
+    }
+    let cfg = env::EnvelopeConfig {
+        depths_m: args.depths_m.clone(),
+        winds_mps: args.winds_mps.clone(),
+        turbidities: args.turbidities.clone(),
+        skies: args.skies.clone(),
+        draws_per_cell: args.draws_per_cell,
+        seed: args.seed,
+        ..env::EnvelopeConfig::default()
+    };
+    let total = cfg.depths_m.len() * cfg.winds_mps.len() * cfg.turbidities.len() * cfg.skies.len();
+    let bar = if args.quiet { indicatif::ProgressBar::hidden() } else { indicatif::ProgressBar::new(total as u64) };
+    let cells = env::run(&cfg, |done, _| bar.set_position(done as u64));
+    bar.finish_and_clear();
+    let table = env::markdown_table(&cells, &cfg.winds_mps);
+    if let Some(p) = &args.table {
+        std::fs::write(p, &table).with_context(|| format!("writing the table {}", p.display()))?;
+    }
+    if let Some(p) = &args.png {
+        envelope_png(p, &cells, &cfg).with_context(|| format!("writing the figure {}", p.display()))?;
+    }
+    match format {
+        Format::Json => println!("{}", serde_json::to_string(&cells)?),
+        Format::Text => print!("{table}"),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Two rows of panels, one column per sunlit sky and turbidity: heading RMSE (log scale) and
+/// the fraction within 2 reported sigma against wind, one line per depth. Skies without a
+/// fix anywhere (overcast, twilight) are in the table only.
+fn envelope_png(
+    path: &std::path::Path,
+    cells: &[subnav_compass::envelope::Cell],
+    cfg: &subnav_compass::envelope::EnvelopeConfig,
+) -> Result<()> {
+    use plotters::prelude::*;
+    let text = subnav_report::plot::font_ok();
+    let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("plotting: {e}");
+    let mut panels: Vec<(String, f64)> = Vec::new();
+    for c in cells.iter().filter(|c| c.fixes > 0) {
+        let key = (c.sky.clone(), c.turbidity);
+        if !panels.contains(&key) {
+            panels.push(key);
+        }
+    }
+    if panels.is_empty() {
+        bail!("no cell of the envelope has a fix: nothing to draw");
+    }
+    let w_max = cfg.winds_mps.iter().copied().fold(0.0, f64::max).max(1.0);
+    let cols = [RGBColor(31, 119, 180), RGBColor(255, 127, 14), RGBColor(44, 160, 44), RGBColor(214, 39, 40), RGBColor(148, 103, 189)];
+    let root = BitMapBackend::new(path, (420 * panels.len() as u32, 760)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let areas = root.split_evenly((2, panels.len()));
+    for (j, (sky, turb)) in panels.iter().enumerate() {
+        for row in 0..2 {
+            let area = &areas[row * panels.len() + j];
+            let mut b = ChartBuilder::on(area);
+            b.margin(10).x_label_area_size(if text { 35 } else { 0 }).y_label_area_size(if text { 55 } else { 0 });
+            if text {
+                b.caption(format!("{sky}, turbidity {turb}"), ("sans-serif", 18));
+            }
+            let series = |d: f64| -> Vec<(f64, f64)> {
+                cells
+                    .iter()
+                    .filter(|c| &c.sky == sky && c.turbidity == *turb && c.depth_m == d && c.fixes > 0)
+                    .map(|c| (c.wind_mps, if row == 0 { c.rmse_deg.max(1e-3) } else { 100.0 * c.within_2_sigma }))
+                    .collect()
+            };
+            if row == 0 {
+                let mut ch = b.build_cartesian_2d(0.0..w_max, (0.02f64..20.0).log_scale()).map_err(|e| err(&e))?;
+                if text {
+                    ch.configure_mesh().x_desc("wind (m/s)").y_desc("heading RMSE (deg)").draw().map_err(|e| err(&e))?;
+                }
+                for (k, d) in cfg.depths_m.iter().enumerate() {
+                    let col = cols[k % cols.len()];
+                    let s = ch.draw_series(LineSeries::new(series(*d), col.stroke_width(2))).map_err(|e| err(&e))?;
+                    if text {
+                        s.label(format!("{d} m")).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2)));
+                    }
+                }
+                if text {
+                    ch.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(|e| err(&e))?;
+                }
+            } else {
+                let mut ch = b.build_cartesian_2d(0.0..w_max, 50.0f64..100.0).map_err(|e| err(&e))?;
+                if text {
+                    ch.configure_mesh().x_desc("wind (m/s)").y_desc("% within 2 reported sigma").draw().map_err(|e| err(&e))?;
+                }
+                ch.draw_series(LineSeries::new([(0.0, 95.4), (w_max, 95.4)], BLACK.mix(0.4))).map_err(|e| err(&e))?;
+                for (k, d) in cfg.depths_m.iter().enumerate() {
+                    let col = cols[k % cols.len()];
+                    ch.draw_series(LineSeries::new(series(*d).into_iter().map(|(x, y)| (x, y.max(50.0))), col.stroke_width(2)))
+                        .map_err(|e| err(&e))?;
+                }
+            }
+        }
+    }
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
+
 fn water(sky: &Sky) -> sim::Water {
-    let flat = sim::Water::clear();
+    let flat = montecarlo::turbid_water(sky.turbidity);
     if sky.slope_rms > 0.0 { sim::Water { slope_rms: sky.slope_rms, facets: 16, ..flat } } else { flat }
+}
+
+fn sea_run(sky: &Sky) -> Option<montecarlo::SeaRun> {
+    (sky.wind_mps.is_some() || sky.sky.is_some()).then(|| montecarlo::SeaRun::new(sky.wind_mps.unwrap_or(0.0), sky.sky.unwrap_or_default()))
 }
 
 fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
@@ -143,8 +310,12 @@ fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
         tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
         water: water(&args.sky),
         seed: args.sky.seed,
+        sea: sea_run(&args.sky),
         ..montecarlo::McConfig::default()
     };
+    if cfg.sea.is_some() && args.emit_csv.is_some() {
+        bail!("--emit-csv writes flat-surface draws: leave out --wind-mps and --sky");
+    }
     if let Some(path) = &args.emit_csv {
         emit_csv(&cfg, path)?;
     }
@@ -170,6 +341,16 @@ fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
                 100.0 * r.within_2_sigma,
                 r.mean_dolp
             );
+            if let Some(s) = &r.sea {
+                println!(
+                    "moving sea: wind {} m/s, sky {}, {} sessions; {:.1}% within 2 of the solver's own sigma, RMS wave part {:.4} deg",
+                    s.wind_mps,
+                    s.sky,
+                    s.sessions,
+                    100.0 * s.within_2_solver_sigma,
+                    s.rms_wave_sigma_deg
+                );
+            }
             for b in &r.bins {
                 println!(
                     "  sun {:>5.1}-{:>5.1} deg: {:>5} fixes, RMSE {:.4} deg",

@@ -1,6 +1,7 @@
 //! `subnav sim`: write a dive scenario (JSON) for `subnav run`: a lawnmower survey at depth at a
 //! date and place, water clarity, sensor grades, the DVL (on by default) and its seafloor,
-//! position fixes with their latency, the camera and the map in the loop, and injected faults.
+//! position fixes with their latency, the camera and the map in the loop, the wind (a moving
+//! sea) and the sky with a change of each mid-dive, and injected faults.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -48,6 +49,18 @@ pub struct Args {
     /// Water clarity: attenuation scale on clear water (1 = clear, 3 = coastal).
     #[arg(long, default_value_t = 1.0)]
     pub turbidity: f64,
+    /// Wind over the sea, m/s at 10 m (0..=30; 0 = flat): a moving sea under the compass.
+    #[arg(long, default_value_t = 0.0, value_parser = args::f64_in(0.0..=30.0))]
+    pub wind_mps: f64,
+    /// The sky: clear, partly-cloudy, overcast, twilight.
+    #[arg(long, default_value = "clear", value_parser = args::parse_sky)]
+    pub sky: subnav_base::sky::SkyKind,
+    /// From T s on the wind is MPS m/s (`T,MPS`: a sea-state change mid-dive).
+    #[arg(long, value_name = "T,MPS", value_parser = args::parse_wind_change)]
+    pub wind_change: Option<(f64, f64)>,
+    /// From T s on the sky is KIND (`T,KIND`).
+    #[arg(long, value_name = "T,KIND", value_parser = args::parse_sky_change)]
+    pub sky_change: Option<(f64, subnav_base::sky::SkyKind)>,
     /// IMU noise relative to the grade the firmware is tuned for (ICM-42688-P).
     #[arg(long, default_value_t = 1.0)]
     pub imu_noise_scale: f64,
@@ -196,6 +209,13 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
         sc.survey.heading0_rad = h.to_radians();
     }
     sc.turbidity = a.turbidity;
+    sc.sea = subnav_sil::SeaPlan {
+        wind_mps: a.wind_mps,
+        sky: a.sky,
+        wind_change: a.wind_change,
+        sky_change: a.sky_change,
+        ..Default::default()
+    };
     sc.imu_noise_scale = a.imu_noise_scale;
     sc.position_fixes = (!a.no_fixes).then_some(FixPlan {
         period_s: a.fix_period_s,
