@@ -21,11 +21,11 @@ pub use records::*;
 use postcard::experimental::max_size::MaxSize;
 
 /// Bumped on every incompatible change of the messages or framing.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0x7690_53a7_07d7_1c01;
+pub const SCHEMA_FINGERPRINT: u64 = 0x91a4_34fc_3df2_9f1d;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
@@ -33,8 +33,14 @@ pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
 pub const MAX_DOWNLINK_FRAME: usize = max_frame_len(Downlink::POSTCARD_MAX_SIZE);
 
 /// The boot message this build of the protocol sends.
-pub const fn boot_message(board: Board, firmware_version: [u8; 3], t_us: u64, calibration: CalibrationInUse) -> Boot {
-    Boot { protocol_version: PROTOCOL_VERSION, schema_fingerprint: SCHEMA_FINGERPRINT, firmware_version, board, t_us, calibration }
+pub const fn boot_message(
+    board: Board,
+    firmware_version: [u8; 3],
+    t_us: u64,
+    calibration: CalibrationInUse,
+    reset_cause: ResetCause,
+) -> Boot {
+    Boot { protocol_version: PROTOCOL_VERSION, schema_fingerprint: SCHEMA_FINGERPRINT, firmware_version, board, t_us, calibration, reset_cause }
 }
 
 /// Whether a peer's boot message speaks our protocol.

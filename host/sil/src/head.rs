@@ -451,13 +451,31 @@ pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> Imu
 }
 
 /// The chips and their inputs. Implements [`BusHandler`].
+///
+/// The world's clock does not restart with the head: when the firmware's time goes back (the
+/// head was reset: watchdog, `Reboot`), the chips see the new boot's time plus the world time
+/// at which it happened, so the vehicle, the sun and the fault windows go on where they were.
 pub struct SimHead {
     chips: ChipSet,
+    /// World time of the head's last boot, µs (0 until the head resets).
+    boot_world_us: u64,
+    /// Last world time a request carried, and the head time it had.
+    last_world_us: u64,
+    last_head_us: u64,
+    /// Resets of the head seen (its time going back).
+    pub head_resets: u32,
 }
 
 impl BusHandler for SimHead {
     fn handle(&mut self, req: &BusRequest) -> BusResponse {
-        self.chips.handle(req)
+        if req.t_us < self.last_head_us {
+            self.boot_world_us = self.last_world_us;
+            self.head_resets += 1;
+        }
+        self.last_head_us = req.t_us;
+        let req = BusRequest { t_us: req.t_us.saturating_add(self.boot_world_us), ..*req };
+        self.last_world_us = req.t_us;
+        self.chips.handle(&req)
     }
 }
 
@@ -645,6 +663,6 @@ impl SimHead {
             modem = modem.with_live_source(Box::new(move |t_us| map.poll(t_us)));
         }
         chips.attach_uart(1, modem);
-        SimHead { chips }
+        SimHead { chips, boot_world_us: 0, last_world_us: 0, last_head_us: 0, head_resets: 0 }
     }
 }
