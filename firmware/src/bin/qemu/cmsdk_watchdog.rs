@@ -7,13 +7,15 @@
 //! pending, it resets the machine (QEMU: `watchdog_perform_action`, a system reset unless
 //! `-action watchdog=...` says otherwise). Feeding clears the interrupt and reloads the count.
 //!
-//! The board has no reset-cause register, so the cause is a word pair in `.uninit` RAM (not
-//! zeroed by the runtime, not reloaded by QEMU on reset): the watchdog's NMI writes `Watchdog`
-//! before the reset, the `Reboot` command writes `Software` before `SYSRESETREQ`, and the next
-//! boot reads and clears it. Power-on RAM holds no mark: `PowerOn`.
+//! The board has no reset-cause register, so the cause is a word pair in RAM that survives a
+//! reset: the watchdog's NMI writes `Watchdog` before the reset, the `Reboot` command writes
+//! `Software` before `SYSRESETREQ`, and the next boot reads and clears it. Power-on RAM holds
+//! no mark: `PowerOn`. Where: just above the 128 KiB the firmware's RAM budget uses
+//! (`boards/mps2-an386.x`; the board's SSRAM is 4 MiB). Not a `.uninit` static: the linker puts
+//! `.uninit` in the same ELF segment as `.bss`, and QEMU's loader zero-fills that whole segment
+//! on every reset (its ROM blob: data, then zeros up to the segment's memory size).
 
-use core::mem::MaybeUninit;
-use core::ptr::{addr_of_mut, read_volatile, write_volatile};
+use core::ptr::{read_volatile, write_volatile};
 
 use subnav_wire::ResetCause;
 
@@ -58,8 +60,8 @@ impl Watchdog {
 
 const MARK_MAGIC: u32 = 0x5EB0_07CA;
 
-#[unsafe(link_section = ".uninit.subnav_reset_cause")]
-static mut RESET_MARK: MaybeUninit<[u32; 2]> = MaybeUninit::uninit();
+/// Two words past the end of the linker's RAM region (0x2000_0000 + 128 KiB).
+const RESET_MARK: usize = 0x2002_0000;
 
 fn code(cause: ResetCause) -> u32 {
     match cause {
@@ -73,10 +75,10 @@ fn code(cause: ResetCause) -> u32 {
 
 /// Leave `cause` for the next boot (called just before a reset).
 pub fn mark_next_reset(cause: ResetCause) {
-    // SAFETY: a plain word store to our own static (no reference is formed); it runs either in
+    // SAFETY: board RAM outside every linker region, used by nothing else; it runs either in
     // the NMI, with the board loop stopped for good, or just before SYSRESETREQ.
     unsafe {
-        let p = addr_of_mut!(RESET_MARK) as *mut u32;
+        let p = RESET_MARK as *mut u32;
         write_volatile(p, MARK_MAGIC);
         write_volatile(p.add(1), code(cause));
     }
@@ -84,9 +86,9 @@ pub fn mark_next_reset(cause: ResetCause) {
 
 /// Why this boot happened, and clear the mark (read once, at reset).
 pub fn take_reset_cause() -> ResetCause {
-    // SAFETY: word loads and stores of our own static, before anything else runs.
+    // SAFETY: as in `mark_next_reset`; read once at reset, before anything else runs.
     let (magic, c) = unsafe {
-        let p = addr_of_mut!(RESET_MARK) as *mut u32;
+        let p = RESET_MARK as *mut u32;
         let v = (read_volatile(p), read_volatile(p.add(1)));
         write_volatile(p, 0);
         v
