@@ -844,7 +844,9 @@ mod tests {
             app.poll(ms * 1000, &mut out);
         }
         let msgs = decode_all(&out);
-        assert!(matches!(msgs[0], Uplink::Boot(b) if b.compatibility() == wire::Compatibility::Compatible && b.reset_cause == ResetCause::PowerOn));
+        assert!(
+            matches!(msgs[0], Uplink::Boot(b) if b.compatibility() == wire::Compatibility::Compatible && b.reset_cause == ResetCause::PowerOn)
+        );
         let navs: Vec<u64> = msgs.iter().filter_map(|m| if let Uplink::Nav(n) = m { Some(n.t_us) } else { None }).collect();
         assert_eq!(navs.len(), 21, "10 Hz for 2 s, both ends included");
         assert!(navs.windows(2).all(|w| w[1] - w[0] == 100_000));

@@ -40,7 +40,15 @@ pub const fn boot_message(
     calibration: CalibrationInUse,
     reset_cause: ResetCause,
 ) -> Boot {
-    Boot { protocol_version: PROTOCOL_VERSION, schema_fingerprint: SCHEMA_FINGERPRINT, firmware_version, board, t_us, calibration, reset_cause }
+    Boot {
+        protocol_version: PROTOCOL_VERSION,
+        schema_fingerprint: SCHEMA_FINGERPRINT,
+        firmware_version,
+        board,
+        t_us,
+        calibration,
+        reset_cause,
+    }
 }
 
 /// Whether a peer's boot message speaks our protocol.

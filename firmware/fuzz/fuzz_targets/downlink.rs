@@ -20,8 +20,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use libfuzzer_sys::fuzz_target;
-use subnav_firmware::{App, TelemetrySink};
 use subnav_firmware::store::{RecordStore, StoreError};
+use subnav_firmware::{App, TelemetrySink};
 use subnav_wire::*;
 
 /// The uplink bytes the head wrote.

@@ -330,8 +330,7 @@ impl Scenario {
             sun_lost_s: w(0.35, 0.10 * d),
             host_outage_s: w(0.72, 0.05 * d),
         };
-        sc.position_fixes =
-            Some(FixPlan { multipath_probability: 0.05, multipath_offset_m: 30.0, ..FixPlan::usbl(5.0, 2.0, 1.0) });
+        sc.position_fixes = Some(FixPlan { multipath_probability: 0.05, multipath_offset_m: 30.0, ..FixPlan::usbl(5.0, 2.0, 1.0) });
         if let Some(dvl) = sc.dvl.as_mut() {
             dvl.lock_lost_s = w(0.50, 0.10 * d);
             dvl.invalid_probability = 0.02;
@@ -800,7 +799,8 @@ impl SimHead {
                 }),
             );
             chips.attach_gpio(0, camera);
-            modem = modem.with_live_source(Box::new(move |t_us| if faults.host_down(t_us as f64 * 1e-6) { Vec::new() } else { map.poll(t_us) }));
+            modem = modem
+                .with_live_source(Box::new(move |t_us| if faults.host_down(t_us as f64 * 1e-6) { Vec::new() } else { map.poll(t_us) }));
         }
         chips.attach_uart(1, modem);
         SimHead { chips, boot_world_us: 0, last_world_us: 0, last_head_us: 0, head_resets: 0 }

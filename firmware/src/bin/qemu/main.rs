@@ -142,8 +142,16 @@ fn parse_u64(s: &[u8]) -> Option<u64> {
 
 #[inline(never)] // its 640-byte command-line buffer stays out of the board loop's frame
 fn run_options() -> RunOptions {
-    let mut opts =
-        RunOptions { run_ms: None, panic_at_ms: None, hang_at_ms: None, bus_req: None, bus_resp: None, utc_unix_us: None, lat_e7: None, lon_e7: None };
+    let mut opts = RunOptions {
+        run_ms: None,
+        panic_at_ms: None,
+        hang_at_ms: None,
+        bus_req: None,
+        bus_resp: None,
+        utc_unix_us: None,
+        lat_e7: None,
+        lon_e7: None,
+    };
     let mut buf = [0u8; 640];
     // SYS_GET_CMDLINE (0x15): parameter block [buffer address, buffer length]; the host writes
     // a NUL-terminated command line and updates the length.

@@ -125,8 +125,7 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
         let run = run_native_scored(&sc, None);
-        let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
-        r.map = run.map;
+        let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc);
         ok &= r.nonfinite_values == 0;
         if format == Format::Text {
             println!(
@@ -233,9 +232,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;
         }
-        let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
-        r.map = run.map;
-        r
+        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc)
     } else {
         let elf = args.elf.as_ref().context("--elf is required without --native")?;
         if !elf.exists() {
