@@ -54,11 +54,11 @@ static MILLIS: AtomicU32 = AtomicU32::new(0);
 /// The IWDG resets the chip after this long without a feed (a board-loop pass takes a few ms).
 const WATCHDOG_PERIOD_MS: u32 = 500;
 
-/// Why the chip reset, from `RCC_CSR` (then cleared, so the next reset reports its own cause).
+/// Why the chip reset, from `RCC_CSR` (`WDGRSTF` is the IWDG's flag; then cleared, so the next reset reports its own cause).
 /// A power-on also sets the pin and brown-out flags, so the order matters.
 fn take_reset_cause(rcc: &pac::RCC) -> ResetCause {
     let csr = rcc.csr().read();
-    let cause = if csr.iwdgrstf().bit_is_set() || csr.wwdgrstf().bit_is_set() {
+    let cause = if csr.wdgrstf().bit_is_set() || csr.wwdgrstf().bit_is_set() {
         ResetCause::Watchdog
     } else if csr.sftrstf().bit_is_set() {
         ResetCause::Software

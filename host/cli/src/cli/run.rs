@@ -330,6 +330,21 @@ fn print_summary(r: &DiveResult) {
     for (source, kind, count) in &r.faults {
         println!("fault                 {source} {kind} x{count}");
     }
+    if r.longest_nav_gap_s > 1.0 {
+        println!("navigation gap        {:.1} s (the longest stretch the host received no solution)", r.longest_nav_gap_s);
+    }
+    let secs = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{x:.1} s"));
+    for c in &r.fault_classes {
+        println!(
+            "fault class           {:<31} {:>12} reported {:<5} within 3 sigma after {:>7}, sigmas back after {:>7}  ({})",
+            c.class,
+            c.window_s.map_or("throughout".into(), |(a, b)| format!("{a:.0}-{b:.0} s")),
+            c.reported,
+            secs(c.recovery_s),
+            secs(c.sigma_recovery_s),
+            c.evidence
+        );
+    }
     if let Some(m) = &r.map {
         let s = &m.mapper;
         println!(
