@@ -296,9 +296,7 @@ fn main() -> ! {
             }
             if let Some(t) = opts.hang_at_ms.filter(|_| reset_cause == ResetCause::PowerOn) {
                 if t_us >= t * 1000 {
-                    defmt::warn!("board loop stopped at {=u64} ms (hang_at_ms self-test)", t);
-                    #[allow(clippy::empty_loop)]
-                    loop {}
+                    hang(t);
                 }
             }
             if let Some(t) = opts.run_ms {
@@ -322,6 +320,15 @@ fn main() -> ! {
         }
         cortex_m::asm::wfi();
     }
+}
+
+/// The `hang_at_ms` self-test: the board loop stops here for good (out of line, so the board
+/// loop's frame does not change with it).
+#[inline(never)]
+fn hang(t_ms: u64) -> ! {
+    defmt::warn!("board loop stopped at {=u64} ms (hang_at_ms self-test)", t_ms);
+    #[allow(clippy::empty_loop)]
+    loop {}
 }
 
 fn fail(msg: &str) -> ! {
