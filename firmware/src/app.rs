@@ -134,36 +134,76 @@ pub const RECENT_COMMANDS: usize = 8;
 /// no session, so nothing older can be told from a new command).
 #[derive(Debug, Clone, Copy, Default)]
 struct RecentCommands {
-    slots: [Option<RecentCommand>; RECENT_COMMANDS],
+    /// Per slot: sequence number, command digest, and the ack it got ([`ACK_EMPTY`] for an
+    /// unused slot, [`ACK_QUEUED`] while queued for the store; plain integers, so an `App` is
+    /// built in place: with `Option`s in it, LLVM kept an 8 KB temporary in the board loop's
+    /// frame).
+    seq: [u16; RECENT_COMMANDS],
+    digest: [u32; RECENT_COMMANDS],
+    ack: [u8; RECENT_COMMANDS],
     next: usize,
     /// Duplicates seen since boot.
     duplicates: u32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct RecentCommand {
-    seq: u16,
-    digest: u32,
-    /// The ack it got; `None` while queued for the store.
-    result: Option<Result<(), Refusal>>,
+const ACK_EMPTY: u8 = 0;
+const ACK_QUEUED: u8 = 1;
+const ACK_OK: u8 = 2;
+
+const REFUSALS: [Refusal; 8] = [
+    Refusal::OutOfRange,
+    Refusal::NotFinite,
+    Refusal::NotSupported,
+    Refusal::NotPositiveDefinite,
+    Refusal::Busy,
+    Refusal::TooOld,
+    Refusal::FromFuture,
+    Refusal::StoreFailed,
+];
+
+fn ack_code(result: Option<Result<(), Refusal>>) -> u8 {
+    match result {
+        None => ACK_QUEUED,
+        Some(Ok(())) => ACK_OK,
+        Some(Err(e)) => REFUSALS.iter().position(|r| *r == e).map_or(ACK_OK + 1, |k| ACK_OK + 1 + k as u8),
+    }
+}
+
+fn ack_of(code: u8) -> Option<Result<(), Refusal>> {
+    match code {
+        ACK_EMPTY | ACK_QUEUED => None,
+        ACK_OK => Some(Ok(())),
+        k => Some(Err(REFUSALS.get(usize::from(k - ACK_OK - 1)).copied().unwrap_or(Refusal::Busy))),
+    }
 }
 
 impl RecentCommands {
-    fn find(&mut self, seq: u16, digest: u32) -> Option<&mut RecentCommand> {
-        self.slots.iter_mut().flatten().find(|r| r.seq == seq && r.digest == digest)
+    /// The slot of an earlier `(seq, digest)`, if remembered.
+    fn find(&self, seq: u16, digest: u32) -> Option<usize> {
+        (0..RECENT_COMMANDS).find(|&k| {
+            self.ack.get(k).is_some_and(|a| *a != ACK_EMPTY) && self.seq.get(k) == Some(&seq) && self.digest.get(k) == Some(&digest)
+        })
+    }
+
+    /// The ack the command in slot `k` got (`None`: still queued).
+    fn result(&self, k: usize) -> Option<Result<(), Refusal>> {
+        self.ack.get(k).copied().and_then(ack_of)
     }
 
     fn remember(&mut self, seq: u16, digest: u32, result: Option<Result<(), Refusal>>) {
-        if let Some(slot) = self.slots.get_mut(self.next) {
-            *slot = Some(RecentCommand { seq, digest, result });
+        let k = self.next;
+        if let (Some(s), Some(d), Some(a)) = (self.seq.get_mut(k), self.digest.get_mut(k), self.ack.get_mut(k)) {
+            (*s, *d, *a) = (seq, digest, ack_code(result));
         }
         self.next = (self.next + 1) % RECENT_COMMANDS;
     }
 
     /// Record the ack of a queued command.
     fn acked(&mut self, seq: u16, result: Result<(), Refusal>) {
-        if let Some(r) = self.slots.iter_mut().flatten().find(|r| r.seq == seq && r.result.is_none()) {
-            r.result = Some(result);
+        if let Some(k) = (0..RECENT_COMMANDS).find(|&k| self.ack.get(k) == Some(&ACK_QUEUED) && self.seq.get(k) == Some(&seq)) {
+            if let Some(a) = self.ack.get_mut(k) {
+                *a = ack_code(Some(result));
+            }
         }
     }
 }
@@ -265,7 +305,13 @@ impl App {
             store_jobs: heapless::Deque::new(),
             config_dirty: false,
             reset_cause: ResetCause::PowerOn,
-            recent: RecentCommands { slots: [None; RECENT_COMMANDS], next: 0, duplicates: 0 },
+            recent: RecentCommands {
+                seq: [0; RECENT_COMMANDS],
+                digest: [0; RECENT_COMMANDS],
+                ack: [ACK_EMPTY; RECENT_COMMANDS],
+                next: 0,
+                duplicates: 0,
+            },
         }
     }
 
@@ -644,8 +690,8 @@ impl App {
     pub fn handle_command(&mut self, _now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
         let digest = cmd.command_digest();
         if cmd.seq != 0 {
-            if let Some(first) = self.recent.find(cmd.seq, digest) {
-                let again = first.result;
+            if let Some(k) = self.recent.find(cmd.seq, digest) {
+                let again = self.recent.result(k);
                 self.recent.duplicates = self.recent.duplicates.wrapping_add(1);
                 warn!("command {=u16} is a duplicate, not applied again", cmd.seq);
                 if let Some(result) = again {
