@@ -15,7 +15,7 @@
 
 use subnav_wire::{
     Board, Command, CommandAck, ConfigItem, Decoded, Downlink, Fault, FaultKind, FaultSource, FilterHealth, FrameDecoder,
-    MAX_DOWNLINK_FRAME, Refusal, Uplink, boot_message,
+    MAX_DOWNLINK_FRAME, Refusal, ResetCause, Uplink, boot_message,
 };
 
 use subnav_core::ephemeris::Observer;
@@ -112,6 +112,100 @@ pub struct App {
     store_jobs: heapless::Deque<StoreJob, STORE_QUEUE>,
     /// The run configuration changed and is not stored yet.
     config_dirty: bool,
+    /// Why the board started, reported in `Boot`.
+    reset_cause: ResetCause,
+    /// The last sequenced commands received (see [`RecentCommands`]).
+    recent: RecentCommands,
+}
+
+/// Sequenced commands remembered for duplicate detection.
+pub const RECENT_COMMANDS: usize = 8;
+
+/// The duplicate filter of the downlink. A command with `seq != 0` whose `(seq, digest of the
+/// command)` matches one of the last [`RECENT_COMMANDS`] received is a retransmission or a
+/// replay: it is not applied again; it is acknowledged again with the first one's result (a
+/// sender whose ack was lost gets it), or, while that one is still queued for the store, by
+/// the one ack it will get. A command refused `Busy` is not remembered: its retry is a new try.
+/// `seq == 0` (the board's configured start) is never filtered. A
+/// different command under a recent number is a new command (senders share the number
+/// space: operator from 1, USBL fixes from 1, the map from 0x8000). An exact replay older than
+/// the window is applied again: a fix is then refused for its time of validity (`TooOld`),
+/// configuration is idempotent; `Reboot` and `ResetFilter` would run again (the wire carries
+/// no session, so nothing older can be told from a new command).
+#[derive(Debug, Clone, Copy, Default)]
+struct RecentCommands {
+    /// Per slot: sequence number, command digest, and the ack it got ([`ACK_EMPTY`] for an
+    /// unused slot, [`ACK_QUEUED`] while queued for the store; plain integers, so an `App` is
+    /// built in place: with `Option`s in it, LLVM kept an 8 KB temporary in the board loop's
+    /// frame).
+    seq: [u16; RECENT_COMMANDS],
+    digest: [u32; RECENT_COMMANDS],
+    ack: [u8; RECENT_COMMANDS],
+    next: usize,
+    /// Duplicates seen since boot.
+    duplicates: u32,
+}
+
+const ACK_EMPTY: u8 = 0;
+const ACK_QUEUED: u8 = 1;
+const ACK_OK: u8 = 2;
+
+const REFUSALS: [Refusal; 8] = [
+    Refusal::OutOfRange,
+    Refusal::NotFinite,
+    Refusal::NotSupported,
+    Refusal::NotPositiveDefinite,
+    Refusal::Busy,
+    Refusal::TooOld,
+    Refusal::FromFuture,
+    Refusal::StoreFailed,
+];
+
+fn ack_code(result: Option<Result<(), Refusal>>) -> u8 {
+    match result {
+        None => ACK_QUEUED,
+        Some(Ok(())) => ACK_OK,
+        Some(Err(e)) => REFUSALS.iter().position(|r| *r == e).map_or(ACK_OK + 1, |k| ACK_OK + 1 + k as u8),
+    }
+}
+
+fn ack_of(code: u8) -> Option<Result<(), Refusal>> {
+    match code {
+        ACK_EMPTY | ACK_QUEUED => None,
+        ACK_OK => Some(Ok(())),
+        k => Some(Err(REFUSALS.get(usize::from(k - ACK_OK - 1)).copied().unwrap_or(Refusal::Busy))),
+    }
+}
+
+impl RecentCommands {
+    /// The slot of an earlier `(seq, digest)`, if remembered.
+    fn find(&self, seq: u16, digest: u32) -> Option<usize> {
+        (0..RECENT_COMMANDS).find(|&k| {
+            self.ack.get(k).is_some_and(|a| *a != ACK_EMPTY) && self.seq.get(k) == Some(&seq) && self.digest.get(k) == Some(&digest)
+        })
+    }
+
+    /// The ack the command in slot `k` got (`None`: still queued).
+    fn result(&self, k: usize) -> Option<Result<(), Refusal>> {
+        self.ack.get(k).copied().and_then(ack_of)
+    }
+
+    fn remember(&mut self, seq: u16, digest: u32, result: Option<Result<(), Refusal>>) {
+        let k = self.next;
+        if let (Some(s), Some(d), Some(a)) = (self.seq.get_mut(k), self.digest.get_mut(k), self.ack.get_mut(k)) {
+            (*s, *d, *a) = (seq, digest, ack_code(result));
+        }
+        self.next = (self.next + 1) % RECENT_COMMANDS;
+    }
+
+    /// Record the ack of a queued command.
+    fn acked(&mut self, seq: u16, result: Result<(), Refusal>) {
+        if let Some(k) = (0..RECENT_COMMANDS).find(|&k| self.ack.get(k) == Some(&ACK_QUEUED) && self.seq.get(k) == Some(&seq)) {
+            if let Some(a) = self.ack.get_mut(k) {
+                *a = ack_code(Some(result));
+            }
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -210,7 +304,25 @@ impl App {
             pending_save: None,
             store_jobs: heapless::Deque::new(),
             config_dirty: false,
+            reset_cause: ResetCause::PowerOn,
+            recent: RecentCommands {
+                seq: [0; RECENT_COMMANDS],
+                digest: [0; RECENT_COMMANDS],
+                ack: [ACK_EMPTY; RECENT_COMMANDS],
+                next: 0,
+                duplicates: 0,
+            },
         }
+    }
+
+    /// Duplicate commands received (and not applied again) since boot.
+    pub fn duplicate_commands(&self) -> u32 {
+        self.recent.duplicates
+    }
+
+    /// Why the board started (read from its reset flags before [`App::boot`]; default power-on).
+    pub fn set_reset_cause(&mut self, cause: ResetCause) {
+        self.reset_cause = cause;
     }
 
     /// The estimator (for inspection in tests and by boards).
@@ -464,6 +576,7 @@ impl App {
                     Err(Refusal::StoreFailed)
                 }
             };
+            self.recent.acked(seq, result);
             self.telemetry.send(&Uplink::Ack(CommandAck { seq, result }), sink);
         }
         while let Some(job) = self.store_jobs.pop_front() {
@@ -494,6 +607,7 @@ impl App {
                     }
                 },
             };
+            self.recent.acked(job.seq, result);
             self.telemetry.send(&Uplink::Ack(CommandAck { seq: job.seq, result }), sink);
         }
     }
@@ -521,7 +635,7 @@ impl App {
 
     fn send_boot(&mut self, now_us: u64, calibration: CalibrationInUse, sink: &mut impl TelemetrySink) {
         self.boot_us = now_us;
-        let boot = boot_message(self.board, FIRMWARE_VERSION, now_us, calibration);
+        let boot = boot_message(self.board, FIRMWARE_VERSION, now_us, calibration, self.reset_cause);
         info!(
             "subnav firmware {=u8}.{=u8}.{=u8} booting, protocol {=u16}",
             FIRMWARE_VERSION[0], FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], boot.protocol_version
@@ -579,6 +693,18 @@ impl App {
     /// own times (a fix its time of validity), so the arrival tick `_now_us` changes nothing.
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn handle_command(&mut self, _now_us: u64, cmd: Downlink, sink: &mut impl TelemetrySink) {
+        let digest = cmd.command_digest();
+        if cmd.seq != 0 {
+            if let Some(k) = self.recent.find(cmd.seq, digest) {
+                let again = self.recent.result(k);
+                self.recent.duplicates = self.recent.duplicates.wrapping_add(1);
+                warn!("command {=u16} is a duplicate, not applied again", cmd.seq);
+                if let Some(result) = again {
+                    self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result }), sink);
+                }
+                return;
+            }
+        }
         let store_op = match cmd.command {
             Command::SetRecord(r) => Some(Ok(r)),
             Command::ReadRecord(k) => Some(Err(StoreOp::Read(k))),
@@ -587,18 +713,31 @@ impl App {
         };
         if let Some(op) = store_op {
             // Acknowledged by `service_store` once done, or now if refused.
-            if let Err(e) = self.queue_store(cmd.seq, op) {
-                warn!("command {=u16} refused", cmd.seq);
-                self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result: Err(e) }), sink);
+            match self.queue_store(cmd.seq, op) {
+                Ok(()) => self.remember(cmd.seq, digest, None),
+                Err(e) => {
+                    warn!("command {=u16} refused", cmd.seq);
+                    self.remember(cmd.seq, digest, Some(Err(e)));
+                    self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result: Err(e) }), sink);
+                }
             }
             return;
         }
         let result = self.apply(cmd.command);
+        self.remember(cmd.seq, digest, Some(result));
         match result {
             Ok(()) => info!("command {=u16} accepted", cmd.seq),
             Err(_) => warn!("command {=u16} refused", cmd.seq),
         }
         self.telemetry.send(&Uplink::Ack(CommandAck { seq: cmd.seq, result }), sink);
+    }
+
+    /// Remember a command for the duplicate filter; one refused `Busy` is not remembered (a
+    /// retry must be tried again).
+    fn remember(&mut self, seq: u16, digest: u32, result: Option<Result<(), Refusal>>) {
+        if seq != 0 && result != Some(Err(Refusal::Busy)) {
+            self.recent.remember(seq, digest, result);
+        }
     }
 
     fn apply(&mut self, command: Command) -> Result<(), Refusal> {
@@ -756,7 +895,9 @@ mod tests {
             app.poll(ms * 1000, &mut out);
         }
         let msgs = decode_all(&out);
-        assert!(matches!(msgs[0], Uplink::Boot(b) if b.compatibility() == wire::Compatibility::Compatible));
+        assert!(
+            matches!(msgs[0], Uplink::Boot(b) if b.compatibility() == wire::Compatibility::Compatible && b.reset_cause == ResetCause::PowerOn)
+        );
         let navs: Vec<u64> = msgs.iter().filter_map(|m| if let Uplink::Nav(n) = m { Some(n.t_us) } else { None }).collect();
         assert_eq!(navs.len(), 21, "10 Hz for 2 s, both ends included");
         assert!(navs.windows(2).all(|w| w[1] - w[0] == 100_000));
@@ -1105,9 +1246,11 @@ mod tests {
         store.save(&Record::RunConfig(cfg)).unwrap();
         store.save(&polarization(2, 1.05)).unwrap();
         let mut app = App::new(Board::QemuMps2An386);
+        app.set_reset_cause(ResetCause::Watchdog);
         let mut out = Vec::new();
         app.boot_with_store(0, &mut store, &mut out);
         let b = boot_of(&decode_all(&out));
+        assert_eq!(b.reset_cause, ResetCause::Watchdog);
         assert_eq!(b.calibration.store, StoreStatus::Ok);
         assert!(b.calibration.config_stored && !b.calibration.imu_stored);
         assert_eq!(b.calibration.polarization_units_stored, 0b0100);
@@ -1158,6 +1301,76 @@ mod tests {
         assert!(acks_of(&msgs).iter().all(|a| a.result.is_ok()));
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Record(RecordReport { stored: None, .. }))));
         assert_eq!(app.estimator.units_model(1).map(|m| m.channels[0].gain), Some(head::POLARIZATION_GAIN_COUNTS));
+    }
+
+    #[test]
+    fn duplicated_and_replayed_commands_are_acknowledged_again_and_not_applied_twice() {
+        let mut store = MemStore::default();
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut out = Vec::new();
+        app.boot_with_store(0, &mut store, &mut out);
+        let reset = cmd(1, Command::ResetFilter);
+        let rate = cmd(2, Command::SetConfig(ConfigItem::NavRateHz(5)));
+        let save = cmd(3, Command::SetRecord(polarization(1, 0.95)));
+        let mut out = Vec::new();
+        // The same frame twice in a row (a retransmission), and a store command duplicated
+        // while it is still queued: one application each.
+        for f in [&reset, &reset, &rate, &save, &save] {
+            app.on_downlink_bytes(1, f, &mut out);
+        }
+        assert_eq!(app.duplicate_commands(), 2);
+        app.service_store(2, &mut store, &mut out);
+        assert_eq!(
+            acks_of(&decode_all(&out)),
+            vec![
+                CommandAck { seq: 1, result: Ok(()) },
+                CommandAck { seq: 1, result: Ok(()) },
+                CommandAck { seq: 2, result: Ok(()) },
+                CommandAck { seq: 3, result: Ok(()) },
+            ],
+            "a duplicate gets the first one's ack again; a queued one its single ack"
+        );
+        // Replayed later (an old frame again): acknowledged with the first result, not applied:
+        // the configuration changed since stays.
+        let mut out = Vec::new();
+        app.on_downlink_bytes(3, &cmd(4, Command::SetConfig(ConfigItem::NavRateHz(20))), &mut out);
+        app.on_downlink_bytes(3, &rate, &mut out);
+        app.on_downlink_bytes(3, &save, &mut out);
+        assert_eq!(app.config.nav_rate_hz, 20, "the replayed SetConfig(5) was not applied");
+        assert_eq!(
+            acks_of(&decode_all(&out)),
+            vec![CommandAck { seq: 4, result: Ok(()) }, CommandAck { seq: 2, result: Ok(()) }, CommandAck { seq: 3, result: Ok(()) }]
+        );
+        // The same number with another command (another sender) is a new command; a refused
+        // one is refused again; seq 0 is never filtered.
+        let mut out = Vec::new();
+        app.on_downlink_bytes(4, &cmd(2, Command::SetConfig(ConfigItem::NavRateHz(7))), &mut out);
+        assert_eq!(app.config.nav_rate_hz, 7);
+        let bad = cmd(5, Command::SetConfig(ConfigItem::NavRateHz(0)));
+        app.on_downlink_bytes(4, &bad, &mut out);
+        app.on_downlink_bytes(4, &bad, &mut out);
+        let zero = cmd(0, Command::SetConfig(ConfigItem::NavRateHz(9)));
+        app.on_downlink_bytes(4, &zero, &mut out);
+        app.on_downlink_bytes(4, &cmd(6, Command::SetConfig(ConfigItem::NavRateHz(8))), &mut out);
+        app.on_downlink_bytes(4, &zero, &mut out);
+        assert_eq!(app.config.nav_rate_hz, 9, "seq 0 applied both times");
+        assert_eq!(
+            acks_of(&decode_all(&out)),
+            vec![
+                CommandAck { seq: 2, result: Ok(()) },
+                CommandAck { seq: 5, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 5, result: Err(Refusal::OutOfRange) },
+                CommandAck { seq: 0, result: Ok(()) },
+                CommandAck { seq: 6, result: Ok(()) },
+                CommandAck { seq: 0, result: Ok(()) },
+            ]
+        );
+        // Outside the window (RECENT_COMMANDS newer commands since): applied again.
+        for k in 0..RECENT_COMMANDS as u16 {
+            app.on_downlink_bytes(5, &cmd(100 + k, Command::SetConfig(ConfigItem::StreamRaw(true))), &mut Vec::new());
+        }
+        app.on_downlink_bytes(5, &rate, &mut Vec::new());
+        assert_eq!(app.config.nav_rate_hz, 5);
     }
 
     #[test]

@@ -63,6 +63,7 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
         imu_stuck_axis: Some((240.0, 3)),
         occluded_unit: Some((120.0, 130.0, 1)),
         depth_nack_probability: 0.05,
+        ..FaultPlan::default()
     };
     let dvl = DvlPlan {
         silent_s: Some((150.0, 170.0)),

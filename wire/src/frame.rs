@@ -162,3 +162,17 @@ impl<const N: usize> FrameDecoder<N> {
         }
     }
 }
+
+impl crate::Downlink {
+    /// CRC-32 of the command's postcard encoding (not its sequence number): the sensor head's
+    /// duplicate filter compares `(seq, digest)`, so a repeated frame is recognised and a
+    /// different command that reuses a number (another sender) is not taken for it.
+    pub fn command_digest(&self) -> u32 {
+        use postcard::experimental::max_size::MaxSize;
+        let mut buf = [0u8; crate::Command::POSTCARD_MAX_SIZE];
+        match postcard::to_slice(&self.command, &mut buf) {
+            Ok(bytes) => FRAME_CRC.checksum(bytes),
+            Err(_) => 0,
+        }
+    }
+}

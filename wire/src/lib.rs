@@ -25,7 +25,7 @@ pub const PROTOCOL_VERSION: u16 = 5;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0xb1f6_6a75_b3cb_947d;
+pub const SCHEMA_FINGERPRINT: u64 = 0x531d_ad72_d011_ae69;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
@@ -33,8 +33,22 @@ pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);
 pub const MAX_DOWNLINK_FRAME: usize = max_frame_len(Downlink::POSTCARD_MAX_SIZE);
 
 /// The boot message this build of the protocol sends.
-pub const fn boot_message(board: Board, firmware_version: [u8; 3], t_us: u64, calibration: CalibrationInUse) -> Boot {
-    Boot { protocol_version: PROTOCOL_VERSION, schema_fingerprint: SCHEMA_FINGERPRINT, firmware_version, board, t_us, calibration }
+pub const fn boot_message(
+    board: Board,
+    firmware_version: [u8; 3],
+    t_us: u64,
+    calibration: CalibrationInUse,
+    reset_cause: ResetCause,
+) -> Boot {
+    Boot {
+        protocol_version: PROTOCOL_VERSION,
+        schema_fingerprint: SCHEMA_FINGERPRINT,
+        firmware_version,
+        board,
+        t_us,
+        calibration,
+        reset_cause,
+    }
 }
 
 /// Whether a peer's boot message speaks our protocol.

@@ -43,6 +43,26 @@ pub struct Boot {
     pub t_us: u64,
     /// Which configuration and calibrations the head booted with, and the state of its store.
     pub calibration: CalibrationInUse,
+    /// Why the head (re)started.
+    pub reset_cause: ResetCause,
+}
+
+/// Why the sensor head started: read by the board at reset (STM32: `RCC_CSR`; QEMU: a word in
+/// RAM the watchdog's NMI and the reboot command leave for the next boot).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetCause {
+    /// Power applied (or the board cannot tell).
+    PowerOn,
+    /// The reset pin.
+    Pin,
+    /// Supply below the brown-out threshold.
+    Brownout,
+    /// A software reset: the `Reboot` command.
+    Software,
+    /// The watchdog was not fed in time: the firmware hung.
+    Watchdog,
 }
 
 /// What the estimator is currently doing.

@@ -38,7 +38,7 @@ fn nav(t_us: u64) -> Uplink {
 
 fn samples() -> Vec<Uplink> {
     vec![
-        Uplink::Boot(boot_message(Board::QemuMps2An386, [0, 1, 0], 0, crate::CalibrationInUse::NO_STORE)),
+        Uplink::Boot(boot_message(Board::QemuMps2An386, [0, 1, 0], 0, crate::CalibrationInUse::NO_STORE, ResetCause::PowerOn)),
         nav(1_000_000),
         Uplink::Raw(RawSample::Imu(ImuSample { t_us: 5, gyro_radps: [0.0, 1e-3, -1e-3], accel_mps2: [0.0, 0.0, -9.81], temp_c: 21.0 })),
         Uplink::Raw(RawSample::Polarization(PolarizationSample { t_us: 6, unit: 3, counts: [0, -1, 32767, -32768] })),
@@ -146,7 +146,7 @@ fn overlong_frame_is_reported_and_decoder_recovers() {
 
 #[test]
 fn boot_compatibility() {
-    let b = boot_message(Board::Stm32F405, [1, 2, 3], 0, crate::CalibrationInUse::NO_STORE);
+    let b = boot_message(Board::Stm32F405, [1, 2, 3], 0, crate::CalibrationInUse::NO_STORE, ResetCause::PowerOn);
     assert_eq!(b.compatibility(), Compatibility::Compatible);
     let old = Boot { protocol_version: PROTOCOL_VERSION + 1, ..b };
     assert!(matches!(old.compatibility(), Compatibility::VersionMismatch { .. }));

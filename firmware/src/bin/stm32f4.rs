@@ -11,7 +11,9 @@
 //! - the DVL: not wired on this board yet (`NoDvl`: the head runs without it); the QEMU board
 //!   and the native runs have it on UART 0;
 //! - the camera trigger line: PB0, push-pull, pulsed high for each frame;
-//! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s.
+//! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s;
+//! - the independent watchdog (IWDG, on the LSI: it runs even if the main clock fails), fed once
+//!   per pass of the board loop; the reset cause from `RCC_CSR` (read, then cleared) goes in `Boot`.
 //!
 //! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
 //! scheduled by the tick, a blocking HAL keeps the board file small, and it builds in a fraction
@@ -34,12 +36,13 @@ use stm32f4xx_hal::{
     rcc::Config,
     serial::{self, Serial},
     spi::{Mode, Phase, Polarity},
+    watchdog::IndependentWatchdog,
 };
 use subnav_firmware::hal_bus::{HalI2c, HalSpi};
 use subnav_firmware::head_suite::{HeadSuite, NoDvl};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_wire::Board;
+use subnav_wire::{Board, ResetCause};
 
 const HSE_HZ: u32 = 8_000_000;
 const CORE_HZ: u32 = 168_000_000;
@@ -47,6 +50,30 @@ const TICK_HZ: u32 = 1_000;
 const RELOAD: u32 = CORE_HZ / TICK_HZ - 1;
 
 static MILLIS: AtomicU32 = AtomicU32::new(0);
+
+/// The IWDG resets the chip after this long without a feed (a board-loop pass takes a few ms).
+const WATCHDOG_PERIOD_MS: u32 = 500;
+
+/// Why the chip reset, from `RCC_CSR` (`WDGRSTF` is the IWDG's flag; then cleared, so the next reset reports its own cause).
+/// A power-on also sets the pin and brown-out flags, so the order matters.
+fn take_reset_cause(rcc: &pac::RCC) -> ResetCause {
+    let csr = rcc.csr().read();
+    let cause = if csr.wdgrstf().bit_is_set() || csr.wwdgrstf().bit_is_set() {
+        ResetCause::Watchdog
+    } else if csr.sftrstf().bit_is_set() {
+        ResetCause::Software
+    } else if csr.porrstf().bit_is_set() {
+        ResetCause::PowerOn
+    } else if csr.borrstf().bit_is_set() {
+        ResetCause::Brownout
+    } else if csr.padrstf().bit_is_set() {
+        ResetCause::Pin
+    } else {
+        ResetCause::PowerOn
+    };
+    rcc.csr().modify(|_, w| w.rmvf().set_bit());
+    cause
+}
 
 #[exception]
 fn SysTick() {
@@ -100,6 +127,9 @@ fn main() -> ! {
     let (Some(dp), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
         defmt::panic!("peripherals taken twice");
     };
+    let reset_cause = take_reset_cause(&dp.RCC);
+    let mut watchdog = IndependentWatchdog::new(dp.IWDG);
+    watchdog.start(WATCHDOG_PERIOD_MS.millis());
     let mut rcc = dp.RCC.freeze(Config::hse(HSE_HZ.Hz()).sysclk(CORE_HZ.Hz()));
 
     core.SYST.set_clock_source(SystClkSource::Core);
@@ -124,7 +154,8 @@ fn main() -> ! {
 
     let mut clock = Clock(TickClock::new(CORE_HZ));
     let mut app = App::new(Board::Stm32F405);
-    defmt::info!("board stm32f405");
+    app.set_reset_cause(reset_cause);
+    defmt::info!("board stm32f405, reset cause {=?}", reset_cause);
     app.boot(clock.now_us(), &mut sink);
 
     // Sensors.
@@ -192,6 +223,7 @@ fn main() -> ! {
         if app.poll(wake_us, &mut sink) == BoardRequest::Reboot {
             cortex_m::peripheral::SCB::sys_reset();
         }
+        watchdog.feed();
         let done_us = clock.now_us();
         busy_us += done_us.saturating_sub(wake_us);
         let window = done_us.saturating_sub(window_start_us);

@@ -10,7 +10,13 @@ use subnav_link::record::{Meta, Stream, Writer};
 use subnav_wire::*;
 
 fn messages() -> Vec<Uplink> {
-    let mut v = vec![Uplink::Boot(boot_message(Board::QemuMps2An386, [0, 1, 0], 0, subnav_wire::CalibrationInUse::NO_STORE))];
+    let mut v = vec![Uplink::Boot(boot_message(
+        Board::QemuMps2An386,
+        [0, 1, 0],
+        0,
+        subnav_wire::CalibrationInUse::NO_STORE,
+        subnav_wire::ResetCause::PowerOn,
+    ))];
     for i in 0..40u64 {
         let t_us = 100_000 * (i + 1);
         v.push(Uplink::Nav(NavSolution {

@@ -14,7 +14,17 @@ fn records_a_tcp_source_losslessly() {
     let mut bytes = vec![];
     let mut buf = [0u8; MAX_UPLINK_FRAME];
     bytes.extend_from_slice(
-        encode(&Uplink::Boot(boot_message(Board::Stm32F405, [1, 0, 0], 0, subnav_wire::CalibrationInUse::NO_STORE)), &mut buf).unwrap(),
+        encode(
+            &Uplink::Boot(boot_message(
+                Board::Stm32F405,
+                [1, 0, 0],
+                0,
+                subnav_wire::CalibrationInUse::NO_STORE,
+                subnav_wire::ResetCause::PowerOn,
+            )),
+            &mut buf,
+        )
+        .unwrap(),
     );
     for i in 0..200u64 {
         let nav = NavSolution {

@@ -92,7 +92,8 @@ mod tests {
     fn flags_an_incompatible_boot_and_keeps_decoding() {
         let mut bytes = vec![];
         let mut buf = [0u8; MAX_UPLINK_FRAME];
-        let mut boot = boot_message(Board::QemuMps2An386, [0, 1, 0], 0, subnav_wire::CalibrationInUse::NO_STORE);
+        let mut boot =
+            boot_message(Board::QemuMps2An386, [0, 1, 0], 0, subnav_wire::CalibrationInUse::NO_STORE, subnav_wire::ResetCause::PowerOn);
         boot.protocol_version += 1;
         bytes.extend_from_slice(wire::encode(&Uplink::Boot(boot), &mut buf).unwrap());
         bytes.extend_from_slice(wire::encode(&Uplink::Ack(CommandAck { seq: 3, result: Ok(()) }), &mut buf).unwrap());

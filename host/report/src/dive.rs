@@ -65,7 +65,17 @@ pub fn write_recording(path: &Path, opt: &DiveOptions) -> Result<DiveSummary> {
         let f = wire::encode(m, &mut buf).map_err(|e| anyhow::anyhow!("encoding: {e}"))?;
         w.chunk(Stream::Uplink, host(t_us), f)
     };
-    frame(&mut w, &Uplink::Boot(boot_message(Board::QemuMps2An386, [0, 1, 0], t0.t_us, subnav_wire::CalibrationInUse::NO_STORE)), t0.t_us)?;
+    frame(
+        &mut w,
+        &Uplink::Boot(boot_message(
+            Board::QemuMps2An386,
+            [0, 1, 0],
+            t0.t_us,
+            subnav_wire::CalibrationInUse::NO_STORE,
+            subnav_wire::ResetCause::PowerOn,
+        )),
+        t0.t_us,
+    )?;
     let mut truth = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
     for t in &dive.truth {
         truth.push_str(&format!("{},{},{},{},{}\n", t.t_us as f64 * 1e-6, t.pos_ned_m[0], t.pos_ned_m[1], t.pos_ned_m[2], t.yaw_rad));

@@ -58,6 +58,73 @@ pub struct DiveResult {
     /// The map in the loop (scenarios with a camera).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub map: Option<crate::map_loop::MapLoopReport>,
+    /// Longest stretch without a navigation message the host received, s (a host outage shows
+    /// here; 1 / nav rate otherwise).
+    pub longest_nav_gap_s: f64,
+    /// Each fault class the scenario injects: whether the head (or the map) reported it, and how
+    /// long the estimate took to be consistent again after it (see [`fault_classes`]).
+    pub fault_classes: Vec<FaultClassReport>,
+    /// The aided samples, for the map's classes' recovery times.
+    #[serde(skip)]
+    consistency: Vec<Sample>,
+}
+
+/// One injected fault class in a dive's score.
+#[derive(Debug, Clone, Serialize)]
+pub struct FaultClassReport {
+    pub class: &'static str,
+    /// Its window, s (None: throughout the dive, or from `start` to the end).
+    pub window_s: Option<(f64, f64)>,
+    /// What shows it was noticed (the fault messages, compass reports, map counters...).
+    pub evidence: String,
+    pub reported: bool,
+    /// After the window: seconds until the horizontal position and the heading are within 3
+    /// reported sigma for 10 s in a row (0: they never left); None for classes without an end
+    /// or if that never happened before the dive ended.
+    pub recovery_s: Option<f64>,
+    /// After the window: seconds until the reported horizontal position and heading sigmas are
+    /// back within 10 % of their values just before the fault (0: they never grew that much).
+    pub sigma_recovery_s: Option<f64>,
+}
+
+impl DiveResult {
+    /// Attach the map's report, and score the camera's fault classes from its counters.
+    pub fn with_map(mut self, map: Option<crate::map_loop::MapLoopReport>, sc: &Scenario) -> Self {
+        if let (Some(m), Some(c)) = (&map, &sc.camera) {
+            let s = &m.mapper;
+            let samples = std::mem::take(&mut self.consistency);
+            let classes = &mut self.fault_classes;
+            let mut push = |class: &'static str, window_s: Option<(f64, f64)>, n: u64, what: &str| {
+                let recovery_s = window_s.and_then(|(_, b)| recovery_after(&samples, b));
+                let sigma_recovery_s = window_s.and_then(|w| sigma_recovery(&samples, w));
+                classes.push(FaultClassReport {
+                    class,
+                    window_s,
+                    evidence: format!("{n} {what}"),
+                    reported: n > 0,
+                    recovery_s,
+                    sigma_recovery_s,
+                });
+            };
+            if let Some(w) = c.blackout_s {
+                push("camera blackout", Some(w), s.frames_without_features, "frames without features (the descent's included)");
+            }
+            if c.far_image_probability > 0.0 {
+                push("false recognitions far away", None, s.gate_refusals, "appearance matches refused by the position gate");
+            }
+            if c.drop_probability > 0.0 {
+                push("camera frames dropped", None, s.frames_missing, "frames missing");
+            }
+            if c.duplicate_probability > 0.0 {
+                push("camera frames duplicated", None, s.frames_duplicated, "frames duplicated");
+            }
+            if c.reorder_probability > 0.0 {
+                push("camera frames out of order", None, s.frames_out_of_order, "frames out of order");
+            }
+        }
+        self.map = map;
+        self
+    }
 }
 
 /// Yaw 1-sigma (deg) below which the heading counts as converged in [`DiveResult`].
@@ -69,7 +136,32 @@ fn wrap_deg(x: f64) -> f64 {
 
 /// Whether [`evaluate`] reads this message (runs that are not recorded keep only these).
 pub fn scored(m: &Uplink) -> bool {
-    matches!(m, Uplink::Nav(_) | Uplink::Raw(subnav_wire::RawSample::Depth(_)) | Uplink::Compass(_) | Uplink::Fault(_))
+    matches!(m, Uplink::Nav(_) | Uplink::Raw(subnav_wire::RawSample::Depth(_)) | Uplink::Compass(_) | Uplink::Fault(_) | Uplink::Health(_))
+}
+
+/// What the host process sees of the head's telemetry: nothing while it is down
+/// ([`crate::FaultPlan::host_outage_s`]; the bytes the head sends then are lost). A message
+/// without a time (an `Ack`) counts at the time of the one before it.
+pub struct HostView {
+    faults: crate::FaultPlan,
+    last_t_us: u64,
+}
+
+impl HostView {
+    pub fn new(sc: &Scenario) -> Self {
+        Self { faults: sc.faults, last_t_us: 0 }
+    }
+    /// Whether the host is down at `t_us`.
+    pub fn down_at(&self, t_us: u64) -> bool {
+        self.faults.host_down(t_us as f64 * 1e-6)
+    }
+    /// Whether the host receives `m`.
+    pub fn receives(&mut self, m: &Uplink) -> bool {
+        if let Some(t) = m.t_us() {
+            self.last_t_us = t;
+        }
+        !self.faults.host_down(self.last_t_us as f64 * 1e-6)
+    }
 }
 
 /// What a live display shows during a run (from the latest navigation solution).
@@ -136,8 +228,12 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     });
     let map = sc.map_loop();
     let head = SimHead::build(sc, tap, map.clone());
+    let mut host = HostView::new(sc);
     let result = run_with_bus(&cfg, Box::new(head), |e, _down| {
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
+            if !host.receives(&m) {
+                return;
+            }
             if let Some(map) = &map {
                 map.on_uplink(&m);
             }
@@ -167,9 +263,8 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     if outcome.timed_out {
         anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
     }
-    let mut r = evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions);
-    r.map = map.map(|m| m.report());
-    Ok(r)
+    let r = evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions);
+    Ok(r.with_map(map.map(|m| m.report()), sc))
 }
 
 /// The truth of a dive as CSV (`t_s,n_m,e_m,d_m,yaw_rad`, the format `subnav report --truth`
@@ -216,7 +311,11 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         corrupt_frames,
         bus_transactions,
         map: None,
+        longest_nav_gap_s: 0.0,
+        fault_classes: Vec::new(),
+        consistency: Vec::new(),
     };
+    let mut last_nav_s: Option<f64> = None;
     let (mut sh, mut sp, mut sd, mut inside) = (0.0, 0.0, 0.0, 0usize);
     let (mut sh_conv, mut n_conv, mut h_inside) = (0.0, 0usize, 0usize);
     let (mut sc2, mut sr, mut nr) = (0.0, 0.0, 0usize);
@@ -225,6 +324,11 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         match m {
             Uplink::Nav(n) => {
                 r.nav_messages += 1;
+                let t = n.t_us as f64 * 1e-6;
+                if let Some(t0) = last_nav_s {
+                    r.longest_nav_gap_s = r.longest_nav_gap_s.max(t - t0);
+                }
+                last_nav_s = Some(t);
                 let values = n.pos_ned_m.iter().chain(&n.vel_ned_mps).chain(&n.att_nb_wxyz);
                 r.nonfinite_values += values.filter(|v| !v.is_finite()).count();
                 if n.mode != NavMode::Aided {
@@ -307,5 +411,152 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         r.heading_rmse_deg = (sh_conv / n_conv as f64).sqrt();
         r.heading_within_3_sigma = h_inside as f64 / n_conv as f64;
     }
+    r.fault_classes = fault_classes(sc, msgs, r.longest_nav_gap_s);
+    r.consistency = consistency(sc, msgs);
     r
+}
+
+/// An aided sample: time, whether the horizontal position (per axis) and the heading (once
+/// converged) are within 3 reported sigma, and the reported horizontal and heading sigmas.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    t: f64,
+    ok: bool,
+    sigma_h_m: f64,
+    sigma_yaw_deg: f64,
+}
+
+fn consistency(sc: &Scenario, msgs: &[Uplink]) -> Vec<Sample> {
+    let traj = sc.trajectory();
+    msgs.iter()
+        .filter_map(|m| if let Uplink::Nav(n) = m { Some(n) } else { None })
+        .filter(|n| n.mode == NavMode::Aided)
+        .map(|n| {
+            let t = n.t_us as f64 * 1e-6;
+            let truth = traj.at(t);
+            let (en, ee) = (f64::from(n.pos_ned_m[0]) - truth.pos_ned_m.x, f64::from(n.pos_ned_m[1]) - truth.pos_ned_m.y);
+            let pos_ok = en.abs() <= 3.0 * f64::from(n.sigma_pos_m[0]) && ee.abs() <= 3.0 * f64::from(n.sigma_pos_m[1]);
+            let [w, x, y, z] = n.att_nb_wxyz.map(f64::from);
+            let yaw = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)).euler_angles().2.to_degrees();
+            let eh = wrap_deg(yaw - truth.yaw_rad.to_degrees());
+            let sigma_yaw_deg = f64::from(n.sigma_att_rad[2]).to_degrees();
+            let heading_ok = sigma_yaw_deg > HEADING_CONVERGED_SIGMA_DEG || eh.abs() <= 3.0 * sigma_yaw_deg;
+            let [sn, se] = [n.sigma_pos_m[0], n.sigma_pos_m[1]].map(f64::from);
+            Sample { t, ok: pos_ok && heading_ok, sigma_h_m: (sn * sn + se * se).sqrt(), sigma_yaw_deg }
+        })
+        .collect()
+}
+
+/// Seconds from `end_s` until both sigmas are within 10 % of their values at `start_s`.
+fn sigma_recovery(samples: &[Sample], (start_s, end_s): (f64, f64)) -> Option<f64> {
+    let before = samples.iter().rev().find(|s| s.t < start_s)?;
+    samples
+        .iter()
+        .filter(|s| s.t >= end_s)
+        .find(|s| s.sigma_h_m <= 1.1 * before.sigma_h_m && s.sigma_yaw_deg <= 1.1 * before.sigma_yaw_deg)
+        .map(|s| s.t - end_s)
+}
+
+/// Seconds from `end_s` until the estimate is consistent for 10 s in a row.
+fn recovery_after(samples: &[Sample], end_s: f64) -> Option<f64> {
+    const HOLD_S: f64 = 10.0;
+    let mut start: Option<f64> = None;
+    for &Sample { t, ok, .. } in samples.iter().filter(|s| s.t >= end_s) {
+        match (ok, start) {
+            (true, None) => start = Some(t),
+            (true, Some(t0)) if t - t0 >= HOLD_S => return Some(t0 - end_s),
+            (false, _) => start = None,
+            _ => {}
+        }
+    }
+    None
+}
+
+/// Every fault class `sc` injects, with the evidence in the telemetry the host received that it
+/// was noticed: the head's fault messages (in the fault's window, a second of rate limit
+/// allowed), compass reports without a heading while the sun is lost, gate rejects in the head's
+/// health after multipath fixes, a gap in the navigation stream while the host is down (and
+/// messages after it: the head kept streaming), and the map's counters for camera faults.
+pub fn fault_classes(sc: &Scenario, msgs: &[Uplink], longest_nav_gap_s: f64) -> Vec<FaultClassReport> {
+    let samples = consistency(sc, msgs);
+    let faults: Vec<&subnav_wire::Fault> = msgs.iter().filter_map(|m| if let Uplink::Fault(f) = m { Some(f) } else { None }).collect();
+    let fault_in = |src: &str, kind: &str, w: Option<(f64, f64)>| {
+        faults
+            .iter()
+            .filter(|f| format!("{:?}", f.source).starts_with(src) && format!("{:?}", f.kind) == kind)
+            .filter(|f| w.is_none_or(|(a, b)| (a..=b + 1.5).contains(&(f.t_us as f64 * 1e-6))))
+            .count()
+    };
+    let mut out = Vec::new();
+    let mut push = |class: &'static str, window_s: Option<(f64, f64)>, n: usize, what: String, recovers: bool| {
+        let recovery_s = if recovers { window_s.and_then(|(_, b)| recovery_after(&samples, b)) } else { None };
+        let sigma_recovery_s = if recovers { window_s.and_then(|w| sigma_recovery(&samples, w)) } else { None };
+        out.push(FaultClassReport { class, window_s, evidence: format!("{n} {what}"), reported: n > 0, recovery_s, sigma_recovery_s });
+    };
+    let f = &sc.faults;
+    if let Some(w) = f.imu_nack_s {
+        push("imu bus NACKs", Some(w), fault_in("Imu", "BusNack", Some(w)), "Imu BusNack reports".into(), true);
+    }
+    if let Some(w) = f.imu_timeout_s {
+        push("imu bus timeouts", Some(w), fault_in("Imu", "BusTimeout", Some(w)), "Imu BusTimeout reports".into(), true);
+    }
+    if let Some((t, axis)) = f.imu_stuck_axis {
+        let w = Some((t, sc.duration_s));
+        push("imu stuck axis", w, fault_in("Imu", "Stuck", w), format!("Imu Stuck reports (axis {axis})"), false);
+    }
+    if f.imu_spike_probability > 0.0 {
+        push("imu NaN / out-of-range samples", None, fault_in("Imu", "Saturated", None), "Imu Saturated reports".into(), false);
+    }
+    if let Some((a, b, u)) = f.occluded_unit {
+        let src = format!("Polarization {{ unit: {u} }}");
+        push("polarization unit occluded", Some((a, b)), fault_in(&src, "Occluded", Some((a, b))), format!("{src} Occluded reports"), true);
+    }
+    if let Some((a, b)) = f.sun_lost_s {
+        let (none, all) = msgs
+            .iter()
+            .filter_map(|m| if let Uplink::Compass(c) = m { Some(c) } else { None })
+            .filter(|c| (a + 1.0..b).contains(&(c.t_us as f64 * 1e-6)))
+            .fold((0, 0), |(n, k), c| (n + usize::from(c.heading_rad.is_none()), k + 1));
+        let n = if all > 0 && none == all { none } else { 0 };
+        push("sun lost under cloud", Some((a, b)), n, format!("of {all} compass reports in the window without a heading"), true);
+    }
+    if f.depth_nack_probability > 0.0 {
+        push("depth bus NACKs", None, fault_in("Depth", "BusNack", None), "Depth BusNack reports".into(), false);
+    }
+    if let Some(w) = f.host_outage_s {
+        let after = msgs.iter().any(|m| matches!(m, Uplink::Nav(n) if n.t_us as f64 * 1e-6 >= w.1));
+        let n = usize::from(after && longest_nav_gap_s >= w.1 - w.0 - 1.0);
+        push(
+            "host killed and restarted",
+            Some(w),
+            n,
+            format!("gap in the received navigation of {longest_nav_gap_s:.1} s (streaming resumed: {after})"),
+            true,
+        );
+    }
+    if let Some(d) = &sc.dvl {
+        if let Some(w) = d.lock_lost_s {
+            push("dvl bottom lock lost", Some(w), fault_in("Dvl", "Invalid", Some(w)), "Dvl Invalid reports".into(), true);
+        }
+        if let Some(w) = d.silent_s {
+            push("dvl silent", Some(w), 1, "(a silent DVL is not a fault the head can see; scored for recovery)".into(), true);
+        }
+        if d.bad_checksum_probability > 0.0 || d.truncate_probability > 0.0 {
+            let n = fault_in("Dvl", "BadCrc", None) + fault_in("Dvl", "Malformed", None);
+            push("dvl malformed data", None, n, "Dvl BadCrc + Malformed reports".into(), false);
+        }
+    }
+    if let Some(p) = &sc.position_fixes {
+        if p.multipath_probability > 0.0 {
+            let outliers: Vec<f64> = sc.fixes().iter().filter(|x| x.outlier).map(|x| x.arrival_s).collect();
+            let health: Vec<(f64, u32)> = msgs
+                .iter()
+                .filter_map(|m| if let Uplink::Health(h) = m { Some((h.t_us as f64 * 1e-6, h.gate_rejects)) } else { None })
+                .collect();
+            let rejects_at = |t: f64| health.iter().rev().find(|(th, _)| *th <= t).map_or(0, |(_, g)| *g);
+            let seen = outliers.iter().filter(|&&t| rejects_at(t + 1.5) > rejects_at(t - 0.01)).count();
+            push("usbl multipath fixes", None, seen, format!("of {} outlier fixes followed by a gate reject", outliers.len()), false);
+        }
+    }
+    out
 }

@@ -42,6 +42,29 @@ pub struct FaultPlan {
     pub occluded_unit: Option<(f64, f64, usize)>,
     /// The depth sensor NACKs with this probability.
     pub depth_nack_probability: f64,
+    /// The IMU's transactions time out (no answer) in this window.
+    #[serde(default)]
+    pub imu_timeout_s: Option<(f64, f64)>,
+    /// With this probability an IMU sample's physical input is NaN or far beyond the chip's
+    /// range (alternately): the chip outputs full scale, the driver flags it saturated.
+    #[serde(default)]
+    pub imu_spike_probability: f64,
+    /// The sun is lost (heavy cloud) in this window: every polarization unit reads dark, at the
+    /// chip (a minimal stand-in for the sky model's clouds).
+    #[serde(default)]
+    pub sun_lost_s: Option<(f64, f64)>,
+    /// The host process is gone in this window (killed, then restarted): it sends nothing
+    /// (no position fixes, no map fixes), its mapper sees no camera frame and no telemetry; the
+    /// head keeps navigating and streaming into the void.
+    #[serde(default)]
+    pub host_outage_s: Option<(f64, f64)>,
+}
+
+impl FaultPlan {
+    /// Whether the host is down at `t_s`.
+    pub fn host_down(&self, t_s: f64) -> bool {
+        self.host_outage_s.is_some_and(|(a, b)| (a..b).contains(&t_s))
+    }
 }
 
 /// Position fixes the host sends during the dive (an acoustic positioning system such as USBL,
@@ -60,6 +83,31 @@ pub struct FixPlan {
     /// fuses every fix as if it were current does (for comparison only).
     #[serde(default)]
     pub as_if_current: bool,
+    /// USBL multipath: with this probability a fix is off by `multipath_offset_m` (north-east)
+    /// while claiming its usual covariance (the head's innovation gate must refuse it).
+    #[serde(default)]
+    pub multipath_probability: f64,
+    #[serde(default = "default_multipath_offset")]
+    pub multipath_offset_m: f64,
+}
+
+fn default_multipath_offset() -> f64 {
+    30.0
+}
+
+impl FixPlan {
+    /// Fixes every `period_s` with `sigma_m` per axis, arriving `latency_s` after their time of
+    /// validity, stamped with it, no multipath.
+    pub fn usbl(period_s: f64, sigma_m: f64, latency_s: f64) -> Self {
+        Self {
+            period_s,
+            sigma_m,
+            latency_s,
+            as_if_current: false,
+            multipath_probability: 0.0,
+            multipath_offset_m: default_multipath_offset(),
+        }
+    }
 }
 
 /// A scheduled position fix.
@@ -73,6 +121,8 @@ pub struct ScheduledFix {
     pub stamp_s: f64,
     pub pos_ned_m: [f32; 3],
     pub sigma_m: f32,
+    /// A multipath outlier (off by `FixPlan::multipath_offset_m`).
+    pub outlier: bool,
 }
 
 impl ScheduledFix {
@@ -105,6 +155,9 @@ pub struct DvlPlan {
     pub silent_s: Option<(f64, f64)>,
     /// Without bottom lock, switch to water tracking (back when the bottom returns).
     pub auto_water_track: bool,
+    /// Bottom lock lost in this window (the seafloor beyond the DVL's range), s since boot.
+    #[serde(default)]
+    pub lock_lost_s: Option<(f64, f64)>,
 }
 
 impl Default for DvlPlan {
@@ -118,6 +171,7 @@ impl Default for DvlPlan {
             truncate_probability: 0.005,
             silent_s: None,
             auto_water_track: true,
+            lock_lost_s: None,
         }
     }
 }
@@ -238,7 +292,7 @@ impl Default for Scenario {
             turbidity: 1.0,
             imu_noise_scale: 1.0,
             faults: FaultPlan::default(),
-            position_fixes: Some(FixPlan { period_s: 5.0, sigma_m: 2.0, latency_s: 1.0, as_if_current: false }),
+            position_fixes: Some(FixPlan::usbl(5.0, 2.0, 1.0)),
             dvl: default_dvl(),
             camera: None,
             build_seed: None,
@@ -261,6 +315,47 @@ impl Scenario {
         sc.survey = Lawnmower { leg_m: 60.0, spacing_m: 15.0, cross_legs: 5, ..Lawnmower::default() };
         if let Some(d) = sc.dvl.as_mut() {
             d.seafloor_depth_m = DEFAULT_SEAFLOOR_DEPTH_M;
+        }
+        sc
+    }
+
+    /// Every fault class at once, for a dive of `duration_s` (issue 24; `subnav sim
+    /// --every-fault`): the main job's survey (camera and map in the loop, seafloor 4 m below)
+    /// with USBL fixes every 5 s, and, at fixed fractions of the dive: IMU NACKs (2 s) and bus
+    /// timeouts (2 s), a covered polarization unit (5 %), the sun lost under cloud (10 %), DVL
+    /// bottom lock lost (10 %: a minute of a 10-minute dive, six of an hour), a camera blackout
+    /// (5 %), the host process gone (5 %) and, for the last 8 %, a stuck gyro axis; throughout:
+    /// NaN / out-of-range IMU samples (0.05 %), depth NACKs (2 %), malformed, bad-checksum and
+    /// invalid DVL sentences (2 % each), dropped / duplicated / reordered frames (1 % each),
+    /// images of a place 40 m away (5 %) and USBL multipath fixes 30 m off (5 %).
+    pub fn every_fault(seed: u64, duration_s: f64) -> Self {
+        let mut sc = Scenario::map_survey(seed);
+        sc.duration_s = duration_s;
+        let d = duration_s;
+        let w = |start: f64, len: f64| Some((start * d, start * d + len));
+        sc.faults = FaultPlan {
+            imu_nack_s: w(0.15, 2.0),
+            imu_timeout_s: w(0.20, 2.0),
+            imu_stuck_axis: Some((0.92 * d, 5)),
+            occluded_unit: w(0.25, 0.05 * d).map(|(a, b)| (a, b, 1)),
+            depth_nack_probability: 0.02,
+            imu_spike_probability: 0.0005,
+            sun_lost_s: w(0.35, 0.10 * d),
+            host_outage_s: w(0.72, 0.05 * d),
+        };
+        sc.position_fixes = Some(FixPlan { multipath_probability: 0.05, multipath_offset_m: 30.0, ..FixPlan::usbl(5.0, 2.0, 1.0) });
+        if let Some(dvl) = sc.dvl.as_mut() {
+            dvl.lock_lost_s = w(0.50, 0.10 * d);
+            dvl.invalid_probability = 0.02;
+            dvl.bad_checksum_probability = 0.02;
+            dvl.truncate_probability = 0.02;
+        }
+        if let Some(c) = sc.camera.as_mut() {
+            c.blackout_s = w(0.62, 0.05 * d);
+            c.drop_probability = 0.01;
+            c.duplicate_probability = 0.01;
+            c.reorder_probability = 0.01;
+            c.far_image_probability = 0.05;
         }
         sc
     }
@@ -308,10 +403,20 @@ impl Scenario {
         let mut t = self.survey.rest_s + plan.period_s;
         while t <= self.duration_s {
             let p = traj.at(t).pos_ned_m;
-            let pos_ned_m = [0, 1, 2].map(|k| (p[k] + n.sample(&mut rng)) as f32);
+            let mut pos_ned_m = [0, 1, 2].map(|k| (p[k] + n.sample(&mut rng)) as f32);
+            use rand::Rng as _;
+            // Drawn for every fix (when enabled), so the outliers do not shift the noise draws.
+            let outlier = plan.multipath_probability > 0.0 && rng.random::<f64>() < plan.multipath_probability;
+            if outlier {
+                let d = (plan.multipath_offset_m / std::f64::consts::SQRT_2) as f32;
+                pos_ned_m[0] += d;
+                pos_ned_m[1] += d;
+            }
             let arrival_s = t + plan.latency_s.max(0.0);
             let stamp_s = if plan.as_if_current { arrival_s } else { t };
-            out.push(ScheduledFix { t_s: t, arrival_s, stamp_s, pos_ned_m, sigma_m: plan.sigma_m as f32 });
+            if !self.faults.host_down(arrival_s) {
+                out.push(ScheduledFix { t_s: t, arrival_s, stamp_s, pos_ned_m, sigma_m: plan.sigma_m as f32, outlier });
+            }
             t += plan.period_s;
         }
         out
@@ -379,10 +484,16 @@ impl Scenario {
             );
         }
         within("faults.depth_nack_probability", f.depth_nack_probability, 0.0, 1.0)?;
+        window("faults.imu_timeout_s", f.imu_timeout_s)?;
+        within("faults.imu_spike_probability", f.imu_spike_probability, 0.0, 1.0)?;
+        window("faults.sun_lost_s", f.sun_lost_s)?;
+        window("faults.host_outage_s", f.host_outage_s)?;
         if let Some(p) = &self.position_fixes {
             within("position_fixes.period_s", p.period_s, MIN_FIX_PERIOD_S, MAX_DURATION_S)?;
             positive("position_fixes.sigma_m", p.sigma_m, 1000.0)?;
             within("position_fixes.latency_s", p.latency_s, 0.0, 30.0)?;
+            within("position_fixes.multipath_probability", p.multipath_probability, 0.0, 1.0)?;
+            within("position_fixes.multipath_offset_m", p.multipath_offset_m, 0.0, 10_000.0)?;
         }
         if let Some(d) = &self.dvl {
             within("dvl.seafloor_depth_m", d.seafloor_depth_m, s.depth_m, 11_000.0)?;
@@ -399,6 +510,7 @@ impl Scenario {
             within("dvl.bad_checksum_probability", d.bad_checksum_probability, 0.0, 1.0)?;
             within("dvl.truncate_probability", d.truncate_probability, 0.0, 1.0)?;
             window("dvl.silent_s", d.silent_s)?;
+            window("dvl.lock_lost_s", d.lock_lost_s)?;
         }
         if let Some(rig) = &self.rig {
             within("rig.depth_m", rig.depth_m, 0.0, 300.0)?;
@@ -467,6 +579,8 @@ pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> Imu
     let faults = sc.faults;
     let build = sc.build_errors();
     let mut frozen: Option<[f64; 6]> = None;
+    let mut spike_rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0xAAAA);
+    let mut spikes = 0u64;
     move |t_us| {
         let t = t_us as f64 * 1e-6;
         let dt = (t - last_t).max(0.0);
@@ -486,18 +600,43 @@ pub fn imu_input(sc: &Scenario, traj: Arc<Trajectory>) -> impl FnMut(u64) -> Imu
                 v[axis] = f[axis];
             }
         }
+        if faults.imu_spike_probability > 0.0 && rand::Rng::random::<f64>(&mut spike_rng) < faults.imu_spike_probability {
+            spikes += 1;
+            let axis = (spikes % 6) as usize;
+            v[axis] = if spikes % 2 == 0 { f64::NAN } else { 1e6 };
+        }
         ImuInput { specific_force_mps2: [v[0], v[1], v[2]], gyro_radps: [v[3], v[4], v[5]], temp_c: 12.0 }
     }
 }
 
 /// The chips and their inputs. Implements [`BusHandler`].
+///
+/// The world's clock does not restart with the head: when the firmware's time goes back (the
+/// head was reset: watchdog, `Reboot`), the chips see the new boot's time plus the world time of
+/// the head's last transaction before it, so the vehicle, the sun and the fault windows go on
+/// where they were. (The time the head spent hung and resetting is not added: the bridge sees
+/// no time while the head sends nothing; under the watchdog that is about a second.)
 pub struct SimHead {
     chips: ChipSet,
+    /// World time of the head's last boot, µs (0 until the head resets).
+    boot_world_us: u64,
+    /// Last world time a request carried, and the head time it had.
+    last_world_us: u64,
+    last_head_us: u64,
+    /// Resets of the head seen (its time going back).
+    pub head_resets: u32,
 }
 
 impl BusHandler for SimHead {
     fn handle(&mut self, req: &BusRequest) -> BusResponse {
-        self.chips.handle(req)
+        if req.t_us < self.last_head_us {
+            self.boot_world_us = self.last_world_us;
+            self.head_resets += 1;
+        }
+        self.last_head_us = req.t_us;
+        let req = BusRequest { t_us: req.t_us.saturating_add(self.boot_world_us), ..*req };
+        self.last_world_us = req.t_us;
+        self.chips.handle(&req)
     }
 }
 
@@ -520,14 +659,17 @@ pub fn fix_frames(sc: &Scenario) -> Vec<(u64, Vec<u8>)> {
 pub fn dvl_input(plan: DvlPlan, traj: Arc<Trajectory>) -> impl FnMut(u64) -> DvlInput + Send + 'static {
     let lever_down_m = f64::from(head::dvl_mounting().lever_arm_body_m.z);
     move |t_us| {
-        let truth = traj.at(t_us as f64 * 1e-6);
+        let t_s = t_us as f64 * 1e-6;
+        let truth = traj.at(t_s);
+        // Lock lost: the seafloor drops out of range (a trench, a steep slope).
+        let floor_m = plan.seafloor_depth_m + if plan.lock_lost_s.is_some_and(|(a, b)| (a..b).contains(&t_s)) { 500.0 } else { 0.0 };
         let r_bn = truth.att_nb.inverse();
         let v_b = r_bn * truth.vel_ned_mps;
         let c_b = r_bn * Vector3::new(plan.current_ne_mps[0], plan.current_ne_mps[1], 0.0);
         DvlInput {
             vel_body_mps: [v_b.x, v_b.y, v_b.z],
             rate_body_radps: [truth.gyro_radps.x, truth.gyro_radps.y, truth.gyro_radps.z],
-            altitude_m: plan.seafloor_depth_m - truth.pos_ned_m.z - lever_down_m,
+            altitude_m: floor_m - truth.pos_ned_m.z - lever_down_m,
             current_body_mps: [c_b.x, c_b.y, c_b.z],
         }
     }
@@ -642,6 +784,9 @@ impl SimHead {
         if let Some((a, b)) = sc.faults.imu_nack_s {
             imu.faults.nack_window_us = Some(((a * 1e6) as u64, (b * 1e6) as u64));
         }
+        if let Some((a, b)) = sc.faults.imu_timeout_s {
+            imu.faults.timeout_window_us = Some(((a * 1e6) as u64, (b * 1e6) as u64));
+        }
         chips.attach_spi(0, 0, imu);
         // The store's flash: erased, in memory (`SimHead::with_flash` gives it a file).
         chips.attach_spi(0, 1, crate::chips::w25q::W25qModel::new());
@@ -675,7 +820,8 @@ impl SimHead {
             let model = Ads1115Model::new(addr, move |t_us| {
                 let t = t_us as f64 * 1e-6;
                 let occluded = sc2.faults.occluded_unit.is_some_and(|(a, b, k)| k == u && (a..b).contains(&t));
-                let counts = if occluded || n_units <= u {
+                let sun_lost = sc2.faults.sun_lost_s.is_some_and(|(a, b)| (a..b).contains(&t));
+                let counts = if occluded || sun_lost || n_units <= u {
                     [head::POLARIZATION_OFFSET_COUNTS as f64; 4]
                 } else {
                     source.unit_counts(u, t_us, &true_cal, &err, &mut rng).map(|c| c.map(f64::from)).unwrap_or([0.0; 4])
@@ -707,11 +853,23 @@ impl SimHead {
         let mut modem = ModemModel::new(frames, tap);
         if let (Some(plan), Some(map)) = (sc.camera, map) {
             let sink = map.clone();
-            let camera = camera_model(sc, plan, traj.clone(), Box::new(move |cap| sink.on_capture(cap)));
+            let faults = sc.faults;
+            let camera = camera_model(
+                sc,
+                plan,
+                traj.clone(),
+                Box::new(move |cap| {
+                    // A host that is down processes no frame.
+                    if !faults.host_down(cap.exposed_us as f64 * 1e-6) {
+                        sink.on_capture(cap)
+                    }
+                }),
+            );
             chips.attach_gpio(0, camera);
-            modem = modem.with_live_source(Box::new(move |t_us| map.poll(t_us)));
+            modem = modem
+                .with_live_source(Box::new(move |t_us| if faults.host_down(t_us as f64 * 1e-6) { Vec::new() } else { map.poll(t_us) }));
         }
         chips.attach_uart(1, modem);
-        SimHead { chips }
+        SimHead { chips, boot_world_us: 0, last_world_us: 0, last_head_us: 0, head_resets: 0 }
     }
 }

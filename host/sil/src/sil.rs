@@ -74,16 +74,21 @@ struct Collect<'a> {
     corrupt: u64,
     now_us: u64,
     frames: Vec<(u64, Vec<u8>)>,
+    /// What the host process receives (nothing while it is down).
+    host: crate::dive::HostView,
 }
 
 impl TelemetrySink for Collect<'_> {
     fn write_frame(&mut self, frame: &[u8]) -> bool {
-        if self.keep_all {
+        if self.keep_all && !self.host.down_at(self.now_us) {
             self.frames.push((self.now_us, frame.to_vec()));
         }
         for &b in frame {
             match self.dec.push::<Uplink>(b) {
                 Decoded::Message(m) => {
+                    if !self.host.receives(&m) {
+                        continue;
+                    }
                     if let Uplink::Nav(n) = &m {
                         self.last_nav = Some(*n);
                     }
@@ -179,6 +184,7 @@ fn run_native_on(
         corrupt: 0,
         now_us: 0,
         frames: Vec::new(),
+        host: crate::dive::HostView::new(sc),
     };
     let mut downlink = Vec::new();
     let mut app = App::new(Board::QemuMps2An386);
@@ -267,9 +273,7 @@ impl NativeRun {
 /// process to fail; a panic would unwind through the caller).
 pub fn run_dive_native(sc: &Scenario) -> DiveResult {
     let run = run_native_scored(sc, None);
-    let mut r = evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
-    r.map = run.map;
-    r
+    evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, sc)
 }
 
 /// As [`run_dive_native`] on a given head (a scenario without a camera).

@@ -10,7 +10,7 @@ use subnav_sil::{FixPlan, Scenario};
 
 fn dive(latency_s: f64, as_if_current: bool, dvl: bool) -> DiveResult {
     let base = Scenario::default();
-    let fixes = FixPlan { period_s: 5.0, sigma_m: 2.0, latency_s, as_if_current };
+    let fixes = FixPlan { as_if_current, ..FixPlan::usbl(5.0, 2.0, latency_s) };
     let sc = Scenario { seed: 1, position_fixes: Some(fixes), dvl: if dvl { base.dvl } else { None }, ..base };
     let r = run_dive_native(&sc);
     assert_eq!(r.nonfinite_values, 0);

@@ -14,8 +14,14 @@
 //!
 //! Run options come from the semihosting command line (`-semihosting-config arg=...`):
 //! `run_ms=N` exits successfully after N ms of firmware time; `panic_at_ms=N` panics on purpose
-//! (self-test of the panic path: the run must fail); `bus_req=PATH bus_resp=PATH` are the
-//! bridge's pipes (without them the board runs without sensors).
+//! (self-test of the panic path: the run must fail); `hang_at_ms=N` stops the board loop at N ms
+//! after a power-on (self-test of the watchdog: the head must reset and boot again, reporting
+//! `ResetCause::Watchdog`); `bus_req=PATH bus_resp=PATH` are the bridge's pipes (without them
+//! the board runs without sensors).
+//!
+//! Watchdog (`cmsdk_watchdog.rs`): fed once per pass of the board loop; a loop stopped for
+//! `WATCHDOG_PERIOD_MS` raises its NMI (the cause is marked for the next boot), twice that
+//! resets the machine.
 #![no_std]
 #![no_main]
 
@@ -48,11 +54,13 @@ use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, NoStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_wire::{Board, Command, ConfigItem, Downlink};
+use subnav_wire::{Board, Command, ConfigItem, Downlink, ResetCause};
 
 mod cmsdk_uart;
+mod cmsdk_watchdog;
 mod semihost_pipe;
 use cmsdk_uart::Uart;
+use cmsdk_watchdog::Watchdog;
 use semihost_pipe::SemihostPipe;
 
 const CORE_HZ: u32 = 25_000_000;
@@ -60,6 +68,10 @@ const TICK_HZ: u32 = 1_000;
 const RELOAD: u32 = CORE_HZ / TICK_HZ - 1;
 
 static MILLIS: AtomicU32 = AtomicU32::new(0);
+
+/// The watchdog's NMI comes after this long without a feed, its reset after twice this (ms of
+/// virtual time; a board-loop pass takes a few ms at most, the store's boot a few tens).
+const WATCHDOG_PERIOD_MS: u32 = 500;
 
 #[exception]
 fn SysTick() {
@@ -97,6 +109,7 @@ defmt::timestamp!("{=u64:us}", {
 struct RunOptions {
     run_ms: Option<u64>,
     panic_at_ms: Option<u64>,
+    hang_at_ms: Option<u64>,
     /// Paths of the bridge pipes (NUL-terminated copies), if given.
     bus_req: Option<([u8; 200], usize)>,
     bus_resp: Option<([u8; 200], usize)>,
@@ -129,8 +142,16 @@ fn parse_u64(s: &[u8]) -> Option<u64> {
 
 #[inline(never)] // its 640-byte command-line buffer stays out of the board loop's frame
 fn run_options() -> RunOptions {
-    let mut opts =
-        RunOptions { run_ms: None, panic_at_ms: None, bus_req: None, bus_resp: None, utc_unix_us: None, lat_e7: None, lon_e7: None };
+    let mut opts = RunOptions {
+        run_ms: None,
+        panic_at_ms: None,
+        hang_at_ms: None,
+        bus_req: None,
+        bus_resp: None,
+        utc_unix_us: None,
+        lat_e7: None,
+        lon_e7: None,
+    };
     let mut buf = [0u8; 640];
     // SYS_GET_CMDLINE (0x15): parameter block [buffer address, buffer length]; the host writes
     // a NUL-terminated command line and updates the length.
@@ -146,6 +167,8 @@ fn run_options() -> RunOptions {
             opts.run_ms = parse_u64(v);
         } else if let Some(v) = word.strip_prefix(b"panic_at_ms=") {
             opts.panic_at_ms = parse_u64(v);
+        } else if let Some(v) = word.strip_prefix(b"hang_at_ms=") {
+            opts.hang_at_ms = parse_u64(v);
         } else if let Some(v) = word.strip_prefix(b"bus_req=") {
             opts.bus_req = path_arg(v);
         } else if let Some(v) = word.strip_prefix(b"bus_resp=") {
@@ -171,17 +194,20 @@ fn main() -> ! {
     core.SYST.clear_current();
     core.SYST.enable_interrupt();
     core.SYST.enable_counter();
+    let reset_cause = cmsdk_watchdog::take_reset_cause();
+    let mut watchdog = Watchdog::start(WATCHDOG_PERIOD_MS);
 
     let mut uart = Uart::uart0();
     let opts = run_options();
     let mut clock = Clock(TickClock::new(CORE_HZ));
     let mut app = App::new(Board::QemuMps2An386);
+    app.set_reset_cause(reset_cause);
 
     let pipe = match (&opts.bus_req, &opts.bus_resp) {
         (Some((req, rl)), Some((resp, sl))) => SemihostPipe::open(req.get(..*rl).unwrap_or(&[]), resp.get(..*sl).unwrap_or(&[])),
         _ => None,
     };
-    defmt::info!("board qemu-mps2-an386, run_ms={=?}, sensor bridge={=bool}", opts.run_ms, pipe.is_some());
+    defmt::info!("board qemu-mps2-an386, run_ms={=?}, sensor bridge={=bool}, reset cause {=?}", opts.run_ms, pipe.is_some(), reset_cause);
     let has_bridge = pipe.is_some();
     let bridge = RefCell::new(BridgeClient::new(PipeLink(pipe)));
     // Reads block until the host answers; `None` means the pipe broke: fail fast (BusTimeout).
@@ -197,6 +223,7 @@ fn main() -> ! {
     } else {
         &mut no_store
     };
+    watchdog.feed();
     app.boot_with_store(0, store, &mut uart);
     if let Some(utc) = opts.utc_unix_us.and_then(|u| i64::try_from(u).ok()) {
         app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: utc } }, &mut uart);
@@ -259,11 +286,17 @@ fn main() -> ! {
             app.service_store(t_us, store, &mut uart);
             if app.poll(t_us, &mut uart) == BoardRequest::Reboot {
                 defmt::info!("reboot requested");
+                cmsdk_watchdog::mark_next_reset(ResetCause::Software);
                 cortex_m::peripheral::SCB::sys_reset();
             }
             if let Some(t) = opts.panic_at_ms {
                 if t_us >= t * 1000 {
                     panic!("injected panic at {} ms (panic_at_ms self-test)", t);
+                }
+            }
+            if let Some(t) = opts.hang_at_ms.filter(|_| reset_cause == ResetCause::PowerOn) {
+                if t_us >= t * 1000 {
+                    hang(t);
                 }
             }
             if let Some(t) = opts.run_ms {
@@ -276,6 +309,7 @@ fn main() -> ! {
                 }
             }
         }
+        watchdog.feed();
         let done_us = clock.now_us();
         busy_us += done_us.saturating_sub(wake_us);
         let window = done_us.saturating_sub(window_start_us);
@@ -286,6 +320,15 @@ fn main() -> ! {
         }
         cortex_m::asm::wfi();
     }
+}
+
+/// The `hang_at_ms` self-test: the board loop stops here for good (out of line, so the board
+/// loop's frame does not change with it).
+#[inline(never)]
+fn hang(t_ms: u64) -> ! {
+    defmt::warn!("board loop stopped at {=u64} ms (hang_at_ms self-test)", t_ms);
+    #[allow(clippy::empty_loop)]
+    loop {}
 }
 
 fn fail(msg: &str) -> ! {
@@ -300,6 +343,15 @@ fn fail(msg: &str) -> ! {
 fn panic(info: &core::panic::PanicInfo) -> ! {
     defmt::error!("panic: {}", defmt::Display2Format(info));
     debug::exit(debug::EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+/// The watchdog's first expiry (mps2-an386 wires it to the NMI): the board loop has stopped.
+/// Mark the cause for the next boot and wait for the watchdog's reset.
+#[exception]
+unsafe fn NonMaskableInt() {
+    cmsdk_watchdog::mark_next_reset(ResetCause::Watchdog);
     #[allow(clippy::empty_loop)]
     loop {}
 }

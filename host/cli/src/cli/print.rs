@@ -19,7 +19,7 @@ fn v3(v: &[f32; 3]) -> String {
 pub fn text(m: &Uplink) -> String {
     match m {
         Uplink::Boot(b) => format!(
-            "boot    t={} board={:?} firmware={}.{}.{} protocol={} schema={:#018x} store={:?} stored: config={} imu={} dvl={} polarization_units={:#06b}",
+            "boot    t={} board={:?} firmware={}.{}.{} protocol={} schema={:#018x} reset={:?} store={:?} stored: config={} imu={} dvl={} polarization_units={:#06b}",
             secs(b.t_us),
             b.board,
             b.firmware_version[0],
@@ -27,6 +27,7 @@ pub fn text(m: &Uplink) -> String {
             b.firmware_version[2],
             b.protocol_version,
             b.schema_fingerprint,
+            b.reset_cause,
             b.calibration.store,
             b.calibration.config_stored,
             b.calibration.imu_stored,

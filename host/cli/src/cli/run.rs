@@ -125,8 +125,7 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
         let run = run_native_scored(&sc, None);
-        let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
-        r.map = run.map;
+        let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc);
         ok &= r.nonfinite_values == 0;
         if format == Format::Text {
             println!(
@@ -233,9 +232,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         if let Some(p) = &record {
             run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;
         }
-        let mut r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions);
-        r.map = run.map;
-        r
+        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc)
     } else {
         let elf = args.elf.as_ref().context("--elf is required without --native")?;
         if !elf.exists() {
@@ -332,6 +329,21 @@ fn print_summary(r: &DiveResult) {
     println!("bus transactions      {}  corrupt frames {}  non-finite values {}", r.bus_transactions, r.corrupt_frames, r.nonfinite_values);
     for (source, kind, count) in &r.faults {
         println!("fault                 {source} {kind} x{count}");
+    }
+    if r.longest_nav_gap_s > 1.0 {
+        println!("navigation gap        {:.1} s (the longest stretch the host received no solution)", r.longest_nav_gap_s);
+    }
+    let secs = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{x:.1} s"));
+    for c in &r.fault_classes {
+        println!(
+            "fault class           {:<31} {:>12} reported {:<5} within 3 sigma after {:>7}, sigmas back after {:>7}  ({})",
+            c.class,
+            c.window_s.map_or("throughout".into(), |(a, b)| format!("{a:.0}-{b:.0} s")),
+            c.reported,
+            secs(c.recovery_s),
+            secs(c.sigma_recovery_s),
+            c.evidence
+        );
     }
     if let Some(m) = &r.map {
         let s = &m.mapper;

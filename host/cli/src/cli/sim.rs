@@ -143,10 +143,21 @@ pub struct Args {
     /// mounting). Omitted: the ideal head. `subnav calibrate head --build-seed` calibrates it.
     #[arg(long)]
     pub build_seed: Option<u64>,
+    /// Every fault class at once (`Scenario::every_fault`: the main job's survey with the map in
+    /// the loop, USBL fixes, and sensor, link, camera, map and host faults at fixed fractions of
+    /// --duration-s); only --seed and --duration-s apply.
+    #[arg(long)]
+    pub every_fault: bool,
 }
 
 /// The scenario the arguments describe (checked).
 pub fn scenario(a: &Args) -> Result<Scenario> {
+    if a.every_fault {
+        anyhow::ensure!(a.duration_s >= 60.0 && a.duration_s <= 86_400.0, "--every-fault needs --duration-s in [60, 86400]");
+        let sc = Scenario::every_fault(a.seed, a.duration_s);
+        sc.validate().context("the every-fault scenario")?;
+        return Ok(sc);
+    }
     let mut sc = Scenario {
         seed: a.seed,
         duration_s: a.duration_s,
@@ -217,12 +228,8 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
         ..Default::default()
     };
     sc.imu_noise_scale = a.imu_noise_scale;
-    sc.position_fixes = (!a.no_fixes).then_some(FixPlan {
-        period_s: a.fix_period_s,
-        sigma_m: a.fix_sigma_m,
-        latency_s: a.fix_latency_s,
-        as_if_current: a.fix_as_if_current,
-    });
+    sc.position_fixes = (!a.no_fixes)
+        .then_some(FixPlan { as_if_current: a.fix_as_if_current, ..FixPlan::usbl(a.fix_period_s, a.fix_sigma_m, a.fix_latency_s) });
     sc.dvl = (!a.no_dvl).then_some(DvlPlan {
         seafloor_depth_m: a.seafloor_depth_m,
         dropout_probability: a.dvl_dropout_probability,

@@ -47,6 +47,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("firmware_version", json!({"type": "array", "items": int()})),
                 ("board", tagged(&["QemuMps2An386", "Stm32F405"])),
                 ("calibration", json!({"type": "object"})),
+                ("reset_cause", tagged(&["PowerOn", "Pin", "Brownout", "Software", "Watchdog"])),
             ],
         ),
         "nav" => obj(

@@ -105,6 +105,8 @@ pub struct BusFaults {
     pub timeout_next: u32,
     /// NACK every transaction with `start_us <= t_us < end_us`.
     pub nack_window_us: Option<(u64, u64)>,
+    /// Time out (never answer) every transaction with `start_us <= t_us < end_us`.
+    pub timeout_window_us: Option<(u64, u64)>,
     /// NACK each transaction with this probability (seeded, reproducible).
     pub nack_probability: f64,
     rng: ChaCha8Rng,
@@ -124,6 +126,7 @@ impl BusFaults {
             nack_next: 0,
             timeout_next: 0,
             nack_window_us: None,
+            timeout_window_us: None,
             nack_probability: 0.0,
             rng: ChaCha8Rng::seed_from_u64(seed),
             injected: 0,
@@ -144,6 +147,8 @@ impl BusFaults {
             Some(BusFault::Nack)
         } else if self.timeout_next > 0 {
             self.timeout_next -= 1;
+            Some(BusFault::Timeout)
+        } else if self.timeout_window_us.is_some_and(|(a, b)| (a..b).contains(&t_us)) {
             Some(BusFault::Timeout)
         } else if self.nack_window_us.is_some_and(|(a, b)| (a..b).contains(&t_us))
             // The generator is drawn only outside windows, so a window does not shift the draws.
