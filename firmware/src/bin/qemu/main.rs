@@ -195,7 +195,6 @@ fn main() -> ! {
     core.SYST.enable_interrupt();
     core.SYST.enable_counter();
     let reset_cause = cmsdk_watchdog::take_reset_cause();
-    let mut watchdog = Watchdog::start(WATCHDOG_PERIOD_MS);
 
     let mut uart = Uart::uart0();
     let opts = run_options();
@@ -223,8 +222,10 @@ fn main() -> ! {
     } else {
         &mut no_store
     };
-    watchdog.feed();
     app.boot_with_store(0, store, &mut uart);
+    // Started after the store's boot: reformatting a damaged store erases sector after sector
+    // (seconds of flash time, bounded by the chip's size), longer than the watchdog's period.
+    let mut watchdog = Watchdog::start(WATCHDOG_PERIOD_MS);
     if let Some(utc) = opts.utc_unix_us.and_then(|u| i64::try_from(u).ok()) {
         app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: utc } }, &mut uart);
     }
