@@ -629,13 +629,18 @@ pub struct SimHead {
 
 impl BusHandler for SimHead {
     fn handle(&mut self, req: &BusRequest) -> BusResponse {
-        if req.t_us < self.last_head_us {
+        // A reset restarts the head's clock near zero. Requests of a running head can carry
+        // stamps a few ms out of order (an ADC scan is stamped at its start), which is no reset.
+        const RESET_JUMP_US: u64 = 250_000;
+        if req.t_us.saturating_add(RESET_JUMP_US) < self.last_head_us {
             self.boot_world_us = self.last_world_us;
             self.head_resets += 1;
+            self.last_head_us = req.t_us;
+        } else {
+            self.last_head_us = self.last_head_us.max(req.t_us);
         }
-        self.last_head_us = req.t_us;
         let req = BusRequest { t_us: req.t_us.saturating_add(self.boot_world_us), ..*req };
-        self.last_world_us = req.t_us;
+        self.last_world_us = self.last_world_us.max(req.t_us);
         self.chips.handle(&req)
     }
 }
