@@ -100,6 +100,7 @@ fn nav_sample(n: &subnav_wire::NavSolution) -> NavSample {
         pos_ned_m: n.pos_ned_m.map(f64::from),
         cov_ne_m2: [sn * sn, f64::from(n.cov_ne_m2), se * se],
         aided: n.mode == NavMode::Aided,
+        vel_sigma_mps: f64::from(n.sigma_vel_mps[0].max(n.sigma_vel_mps[1])),
     }
 }
 

@@ -40,7 +40,7 @@ fn lawnmower(s_m: f64) -> [f64; 2] {
 
 fn nav(t_us: u64, p: [f64; 2]) -> NavSample {
     let v = 0.1 + DRIFT_M2PS * t_us as f64 * 1e-6;
-    NavSample { t_us, pos_ned_m: [p[0], p[1], 10.0], cov_ne_m2: [v, 0.0, v], aided: true }
+    NavSample { t_us, pos_ned_m: [p[0], p[1], 10.0], cov_ne_m2: [v, 0.0, v], aided: true, vel_sigma_mps: 0.01 }
 }
 
 struct Sim {

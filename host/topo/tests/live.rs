@@ -180,7 +180,7 @@ impl Firmware {
     }
 
     fn sample(&self, t_us: u64, truth: [f64; 2]) -> NavSample {
-        NavSample { t_us, pos_ned_m: [truth[0] + self.err[0], truth[1] + self.err[1], 10.0], cov_ne_m2: tri(&self.p), aided: true }
+        NavSample { t_us, pos_ned_m: [truth[0] + self.err[0], truth[1] + self.err[1], 10.0], cov_ne_m2: tri(&self.p), aided: true, vel_sigma_mps: 0.01 }
     }
 
     fn fuse(&mut self, truth: [f64; 2], fix: &MapFix) {
@@ -312,7 +312,7 @@ fn square(t_s: f64) -> [f64; 2] {
 fn nav_at(t_us: u64, drift_m2ps: f64) -> NavSample {
     let p = square(t_us as f64 * 1e-6);
     let v = 0.1 + drift_m2ps * t_us as f64 * 1e-6;
-    NavSample { t_us, pos_ned_m: [p[0], p[1], 5.0], cov_ne_m2: [v, 0.0, v], aided: true }
+    NavSample { t_us, pos_ned_m: [p[0], p[1], 5.0], cov_ne_m2: [v, 0.0, v], aided: true, vel_sigma_mps: 0.01 }
 }
 
 #[test]
@@ -528,4 +528,36 @@ fn no_recognition_through_a_gate_wider_than_the_scene_repeats() {
     assert!(small.recognitions >= 20 && small.gate_too_wide == 0, "{small:?}");
     assert_eq!(large.recognitions, 0, "{large:?}");
     assert!(large.gate_too_wide >= 20, "{large:?}");
+}
+
+/// The laps of `fixes_need_drift_since_the_node_and_nan_never_comes_out` with the firmware's
+/// velocity aided (sigma 0.01 m/s) and unaided (0.2 m/s, the DVL lost): the same recognitions,
+/// but no fix while the velocity is unaided, each refusal counted; a NaN velocity sigma counts
+/// as unaided.
+#[test]
+fn no_fix_while_the_firmwares_velocity_is_unaided() {
+    let run = |vel_sigma_mps: f64| {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut m = LiveMapper::new(LiveConfig { train_after_nodes: 20, ..LiveConfig::default() });
+        let (mut fixes, mut nav_t) = (0, 0u64);
+        for k in 0..(3 * 240u32) {
+            let t = u64::from(k) * 500_000;
+            while nav_t <= t {
+                m.on_nav(NavSample { vel_sigma_mps, ..nav_at(nav_t, 0.02) });
+                nav_t += 100_000;
+            }
+            let p = square(t as f64 * 1e-6);
+            let out = m.on_frame(&CameraFrame { frame: k, t_us: t, features: Some(place_features(p, &mut rng)), truth_ned_m: Some(p) });
+            fixes += usize::from(matches!(out, FrameOutcome::Fix(_)));
+        }
+        (fixes, m.stats().clone())
+    };
+    let (aided, sa) = run(0.01);
+    assert!(aided > 5 && sa.fixes_refused_velocity == 0, "{sa:?}");
+    for unaided in [0.2, f64::NAN] {
+        let (n, s) = run(unaided);
+        assert_eq!(n, 0, "{s:?}");
+        assert_eq!(s.recognitions, sa.recognitions, "recognition goes on");
+        assert!(s.fixes_refused_velocity >= aided as u64, "{s:?}");
+    }
 }

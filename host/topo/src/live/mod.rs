@@ -79,6 +79,8 @@ pub struct NavSample {
     pub cov_ne_m2: [f64; 3],
     /// The firmware reports aided navigation (only aided samples place or recognise nodes).
     pub aided: bool,
+    /// The firmware's horizontal velocity 1-sigma (largest of north and east, m/s; 0 if unknown).
+    pub vel_sigma_mps: f64,
 }
 
 /// One camera frame: its frame counter (from the camera), its sensor-head trigger time, features.
@@ -149,6 +151,14 @@ pub struct LiveConfig {
     pub min_info_gain: f64,
     /// Eigenvalues of `R` are capped here (m^2), keeping the information vector.
     pub max_fix_eig_m2: f64,
+    /// No fix while the firmware's horizontal velocity 1-sigma exceeds this (m/s): its velocity
+    /// is then held by nothing but position fixes (the DVL lost), so a fix from a false
+    /// recognition (a look-alike cell a few metres off, with the small `R` of a true one) also
+    /// turns the velocity, which no later fix corrects in time: measured in the one-hour
+    /// every-fault dive, 8 map fixes in the first minute of a DVL lock loss sent the estimate
+    /// kilometres away while the USBL alone kept it within 3 sigma (docs/RELIABILITY.md).
+    /// Recognition goes on (counted); only the fix waits for an aided velocity.
+    pub max_fix_vel_sigma_mps: f64,
     /// Accepted closures kept for [`LiveMapper::closures`] (the oldest half is dropped when full).
     pub max_closures: usize,
     /// LMNN tuning.
@@ -181,6 +191,7 @@ impl Default for LiveConfig {
             max_nav_gap_s: 2.0,
             max_sample_age_s: 5.0,
             max_fix_var_m2: 100.0,
+            max_fix_vel_sigma_mps: 0.05,
             min_info_gain: 0.01,
             max_fix_eig_m2: 1e6,
             max_closures: 4096,
@@ -274,6 +285,11 @@ pub enum Refusal {
     /// Recognised, but the covariances are not PD / the result degenerate.
     Numeric {
         node: usize,
+    },
+    /// Recognised, but the firmware's velocity is unaided (`max_fix_vel_sigma_mps`).
+    VelocityUnaided {
+        node: usize,
+        vel_sigma_mps: f64,
     },
 }
 
@@ -389,6 +405,8 @@ pub struct LiveStats {
     pub fixes_refused_interval: u64,
     pub fixes_refused_no_information: u64,
     pub fixes_refused_numeric: u64,
+    /// Recognitions sent no fix because the firmware's velocity was unaided.
+    pub fixes_refused_velocity: u64,
     /// Scoring (truth given): correct recognitions, precision, opportunities, recalled ones, recall.
     pub correct: u64,
     pub precision: Option<f64>,
@@ -404,6 +422,7 @@ struct NavPoint {
     depth_m: f64,
     cov: [f64; 3],
     aided: bool,
+    vel_sigma_mps: f64,
     /// Path length of the nav solution since the first sample (m).
     odo_m: f64,
 }
@@ -415,6 +434,7 @@ struct NavAt {
     depth_m: f64,
     cov: [f64; 3],
     aided: bool,
+    vel_sigma_mps: f64,
     odo_m: f64,
 }
 
@@ -589,7 +609,9 @@ impl LiveMapper {
         }
         let odo_m = self.odo_m;
         self.stats.nav_samples += 1;
-        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov, aided: nav.aided, odo_m });
+        // Unknown (non-finite) velocity sigma: unaided.
+        let vel_sigma_mps = if nav.vel_sigma_mps.is_nan() { f64::INFINITY } else { nav.vel_sigma_mps.abs() };
+        self.nav.push_back(NavPoint { t_us: nav.t_us, pos, depth_m: nav.pos_ned_m[2], cov, aided: nav.aided, vel_sigma_mps, odo_m });
         let window_us = (self.cfg.nav_window_s.max(0.0) * 1e6) as u64;
         while self.nav.len() > self.cfg.max_nav_samples.max(2)
             || self.nav.front().is_some_and(|f| f.t_us.saturating_add(window_us) < nav.t_us)
@@ -607,7 +629,14 @@ impl LiveMapper {
         let b = self.nav.partition_point(|p| p.t_us < t_us);
         let Some(pb) = self.nav.get(b) else { return NavLookup::NeedNav };
         if pb.t_us == t_us {
-            return NavLookup::At(NavAt { pos: pb.pos, depth_m: pb.depth_m, cov: pb.cov, aided: pb.aided, odo_m: pb.odo_m });
+            return NavLookup::At(NavAt {
+                pos: pb.pos,
+                depth_m: pb.depth_m,
+                cov: pb.cov,
+                aided: pb.aided,
+                vel_sigma_mps: pb.vel_sigma_mps,
+                odo_m: pb.odo_m,
+            });
         }
         let Some(pa) = b.checked_sub(1).and_then(|a| self.nav.get(a)) else { return NavLookup::Expired };
         let gap_s = (pb.t_us - pa.t_us) as f64 * 1e-6;
@@ -622,6 +651,7 @@ impl LiveMapper {
             // The later sample's covariance (conservative while drifting).
             cov: pb.cov,
             aided: pa.aided && pb.aided,
+            vel_sigma_mps: pa.vel_sigma_mps.max(pb.vel_sigma_mps),
             odo_m: lerp(pa.odo_m, pb.odo_m),
         })
     }
@@ -939,6 +969,10 @@ impl LiveMapper {
         if self.last_fix_t_us.is_some_and(|lt| t < lt.saturating_add(interval_us)) {
             self.stats.fixes_refused_interval += 1;
             return Recognition::Event(FrameOutcome::Refused { reason: Refusal::FixInterval { node } });
+        }
+        if !(nav.vel_sigma_mps <= cfg.max_fix_vel_sigma_mps) {
+            self.stats.fixes_refused_velocity += 1;
+            return Recognition::Event(FrameOutcome::Refused { reason: Refusal::VelocityUnaided { node, vel_sigma_mps: nav.vel_sigma_mps } });
         }
         let x0 = Vector2::new(n.pos_ned_m[0], n.pos_ned_m[1]);
         let math = match equivalent_fix(x0, &sym(n.cov_ne_m2), x1, &p1, &v, cfg.min_drift_m2) {
