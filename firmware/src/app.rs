@@ -371,7 +371,14 @@ impl App {
                 }
                 Err(f) => {
                     self.fault(now_us, f, sink);
-                    self.estimator.on_imu_unavailable(now_us);
+                    match sensors.take_degraded_imu().filter(|_| f.kind == FaultKind::Stuck) {
+                        Some((s, stuck_gyro)) => {
+                            if self.estimator.on_imu_degraded(&s, stuck_gyro).is_err() {
+                                self.fault(now_us, SensorFault { source: FaultSource::Imu, kind: FaultKind::NonFinite }, sink);
+                            }
+                        }
+                        None => self.estimator.on_imu_unavailable(now_us),
+                    }
                 }
             }
         }

@@ -56,6 +56,10 @@ const HEADING_MODEL_CORR_S: f32 = 10.0;
 const COAST_ATTITUDE_RW: f32 = 0.05;
 const COAST_VELOCITY_RW: f32 = 0.2;
 const COAST_AFTER_US: u64 = 20_000;
+/// With a gyro axis stuck (the other five good), the rate about it is unknown: the attitude
+/// error about that body axis grows as a random walk of this much (rad/sqrt(s), the coast's
+/// attitude walk), and the compass carries the heading.
+const UNKNOWN_RATE_RW: f32 = COAST_ATTITUDE_RW;
 
 /// 1-sigma of the tilt error of the levelling itself (noise of the mean specific force over
 /// `ALIGN_S`, residual motion), on top of the part the accelerometer bias explains.
@@ -212,6 +216,14 @@ impl Estimator {
         self.dvl_scale = scale;
     }
 
+    /// Run `cfg` instead of the head's tuning (an evaluation switch for the host's simulations:
+    /// the AUKF against the plain UKF), back to alignment.
+    pub fn set_nav_config(&mut self, cfg: NavConfig) {
+        self.cfg = cfg;
+        self.nav = filter_storage(cfg);
+        self.reset();
+    }
+
     /// Back to alignment (downlink `ResetFilter`), keeping the filter's storage. Every field
     /// but the configuration, the unit models and the storage goes back to its `new` value.
     pub fn reset(&mut self) {
@@ -240,8 +252,30 @@ impl Estimator {
     }
 
     pub fn on_imu(&mut self, s: &ImuSample) -> Result<(), NavError> {
+        self.on_imu_with(s, 0)
+    }
+
+    /// An IMU sample whose gyro axes in `stuck_gyro` (bit k = body axis k) are stuck, the other
+    /// five good (degraded mode): those axes' rates are taken as unknown (zero, with the
+    /// attitude error growing about them by `UNKNOWN_RATE_RW`), the rest is used as usual. Before
+    /// the alignment ends: ignored (the alignment needs all six).
+    pub fn on_imu_degraded(&mut self, s: &ImuSample, stuck_gyro: u8) -> Result<(), NavError> {
+        if !self.running {
+            return Ok(());
+        }
+        self.on_imu_with(s, stuck_gyro & 0b111)
+    }
+
+    fn on_imu_with(&mut self, s: &ImuSample, stuck_gyro: u8) -> Result<(), NavError> {
         let corrected = self.imu_correction.map(|c| c.apply(s));
-        let s = corrected.as_ref().unwrap_or(s);
+        let mut s = corrected.unwrap_or(*s);
+        // A stuck axis reads the alignment's bias: zero rate once it is removed below.
+        for ((g, b), k) in s.gyro_radps.iter_mut().zip(self.gyro_bias_align).zip(0..) {
+            if stuck_gyro & (1 << k) != 0 {
+                *g = b;
+            }
+        }
+        let s = &s;
         let finite = s.gyro_radps.iter().chain(s.accel_mps2.iter()).all(|v| v.is_finite());
         if finite {
             let a = 0.05;
@@ -261,6 +295,9 @@ impl Estimator {
             }
             if finite {
                 self.last_gyro_radps = c.gyro_radps;
+            }
+            if stuck_gyro != 0 {
+                return nav.propagate_unknown_rates(&c, stuck_gyro, UNKNOWN_RATE_RW);
             }
             return nav.propagate(&c);
         }

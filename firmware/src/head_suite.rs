@@ -99,6 +99,8 @@ pub struct HeadSuite<SPI: SpiDevice, I2C: I2c, U: embedded_io::ErrorType = NoDvl
     imu: Icm42688<SPI>,
     imu_ready: bool,
     imu_stuck: StuckDetector<6>,
+    /// The last sample with only gyro axes stuck, and those axes (see `take_degraded_imu`).
+    degraded_imu: Option<(ImuSample, u8)>,
     adcs: PolarizationAdcs<I2C>,
     scan: Option<(u64, [[i16; 4]; UNITS], [Option<FaultKind>; UNITS])>,
     /// A scan is in progress; the grid point the latest scan was started for.
@@ -146,6 +148,7 @@ where
             imu,
             imu_ready: imu_init.is_ok(),
             imu_stuck: StuckDetector::new(STUCK_LIMIT),
+            degraded_imu: None,
             adcs,
             scan: None,
             scanning: false,
@@ -167,6 +170,7 @@ where
             imu,
             imu_ready,
             imu_stuck,
+            degraded_imu,
             adcs,
             scan,
             scanning,
@@ -183,6 +187,7 @@ where
             imu,
             imu_ready,
             imu_stuck,
+            degraded_imu,
             adcs,
             scan,
             scanning,
@@ -308,10 +313,19 @@ where
             return Err(fault(FaultKind::Saturated));
         }
         let raw = [r.raw.accel[0], r.raw.accel[1], r.raw.accel[2], r.raw.gyro[0], r.raw.gyro[1], r.raw.gyro[2]].map(i32::from);
-        if self.imu_stuck.update(raw) != 0 {
+        let sample = ImuSample { t_us, gyro_radps: r.gyro_radps, accel_mps2: r.accel_mps2, temp_c: r.temp_c };
+        let stuck = self.imu_stuck.update(raw);
+        if stuck != 0 {
+            // Channels 0-2 accelerometer, 3-5 gyro: with only gyro axes stuck the sample is kept
+            // for the degraded mode (`take_degraded_imu`).
+            self.degraded_imu = (stuck & 0b111 == 0).then_some((sample, ((stuck >> 3) & 0b111) as u8));
             return Err(fault(FaultKind::Stuck));
         }
-        Ok(ImuSample { t_us, gyro_radps: r.gyro_radps, accel_mps2: r.accel_mps2, temp_c: r.temp_c })
+        Ok(sample)
+    }
+
+    fn take_degraded_imu(&mut self) -> Option<(ImuSample, u8)> {
+        self.degraded_imu.take()
     }
 
     fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault> {

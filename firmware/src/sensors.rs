@@ -28,6 +28,12 @@ pub trait SensorSuite {
     fn service(&mut self, _t_us: u64) {}
     /// One IMU sample (body FRD, SI units) for time `t_us`.
     fn read_imu(&mut self, t_us: u64) -> Result<ImuSample, SensorFault>;
+    /// After `read_imu` returned `Stuck` with only gyro axes stuck: that sample and the stuck
+    /// gyro axes (bit k = body axis k), for the degraded mode that keeps the five good axes.
+    /// `None` otherwise (then the estimator coasts).
+    fn take_degraded_imu(&mut self) -> Option<(ImuSample, u8)> {
+        None
+    }
     /// Raw counts (0/45/90/135 deg) of polarization unit `unit`.
     fn read_polarization(&mut self, t_us: u64, unit: u8) -> Result<[i16; 4], SensorFault>;
     /// Pressure, temperature and depth (positive down) with the given water density.

@@ -318,6 +318,9 @@ pub struct NavFilter<const N: usize, const S: usize> {
     pub(crate) hist: History,
     pub(crate) delayed_updates: u32,
     pub(crate) delay_rejects: u32,
+    /// Attitude process noise (rad^2, per body axis) of gyro axes whose rate was unknown since
+    /// the last UKF predict ([`NavFilter::propagate_unknown_rates`]); added at the next one.
+    pub(crate) unknown_rate_var_body: Vector3<f32>,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -356,6 +359,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             hist,
             delayed_updates: 0,
             delay_rejects: 0,
+            unknown_rate_var_body: Vector3::zeros(),
         })
     }
 
@@ -387,6 +391,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.hist.restart(self.t_us, &self.nom);
         self.delayed_updates = 0;
         self.delay_rejects = 0;
+        self.unknown_rate_var_body = Vector3::zeros();
         Ok(())
     }
 
@@ -485,6 +490,33 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         Ok(())
     }
 
+    /// Degraded IMU (a gyro axis stuck, the other five good): propagate on `imu`, whose gyro
+    /// axes in `unknown_axes` (bit k = body axis k) carry no rate (the caller zeroed them), and
+    /// let the attitude error grow about those body axes by a rate random walk `rate_rw`
+    /// (rad/sqrt(s)): the unmeasured turn. The velocity and tilt keep the accelerometer and the
+    /// good gyro axes (coasting would lose both: measured, a 5-minute coast with a stuck gyro
+    /// axis let roll and pitch wander to 96 and 52 deg, nothing observing them); the compass
+    /// carries the heading. A refused sample changes nothing.
+    pub fn propagate_unknown_rates(&mut self, imu: &ImuSample, unknown_axes: u8, rate_rw: f32) -> Result<(), NavError> {
+        if !(rate_rw.is_finite() && rate_rw >= 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        let last = self.last_imu_t_us;
+        self.propagate(imu)?;
+        let dt = match last {
+            Some(l) if imu.t_us > l => (imu.t_us - l) as f32 * 1e-6,
+            _ => 0.0,
+        };
+        for k in 0..3 {
+            if unknown_axes & (1 << k) != 0 {
+                if let Some(v) = self.unknown_rate_var_body.get_mut(k) {
+                    *v += rate_rw * rate_rw * dt;
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Run the UKF predict now over the IMU increments accumulated since the last one (updates
     /// do this themselves; a firmware app may call it to bound the latency of `solution()`'s
     /// sigmas).
@@ -503,6 +535,16 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // A refused predict keeps the increments: the next predict covers their interval too.
         self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
         self.inc = Increments::zero();
+        if self.unknown_rate_var_body != Vector3::zeros() {
+            // The body axes' variances in the NED attitude error: P_att += R diag(v) R^T.
+            let r: Matrix3<f32> = self.nom.att_nb.to_rotation_matrix().into_inner();
+            let add = r * Matrix3::from_diagonal(&self.unknown_rate_var_body) * r.transpose();
+            let mut p = *self.ukf.p();
+            let mut blk = p.fixed_view_mut::<3, 3>(ATT, ATT);
+            blk += add;
+            self.ukf.set_p(p)?;
+            self.unknown_rate_var_body = Vector3::zeros();
+        }
         self.inject()
     }
 

@@ -324,3 +324,53 @@ fn coasting_without_the_imu_grows_the_covariance_and_lets_the_compass_in() {
     assert!(nav.propagate(&back).is_ok());
     assert_eq!(nav.coast(t, f32::NAN, 0.2), Err(NavError::NonFinite));
 }
+
+/// A stuck gyro z (the other five axes good) while the vehicle turns at 3 deg/s in place, a
+/// DVL at rest aiding: the rate about body z is unknown, the compass carries the heading. The yaw sigma grows about that axis
+/// only (level: roll and pitch keep their sigma), the heading follows the turn within its
+/// sigma, the velocity stays the accelerometer's (at rest: near zero), P stays PD; coasting the
+/// same minute instead lets the tilt sigma grow by the coast's walk.
+#[test]
+fn a_stuck_gyro_axis_keeps_the_other_five_and_the_compass_carries_the_heading() {
+    let rate = 3f32.to_radians();
+    let run = |degraded: bool| {
+        let mut nav = NavFilter15::new(NavConfig::default(), level_init()).unwrap();
+        let mut max_err = 0f32;
+        for k in 1..=6000u64 {
+            let t = k * 10_000;
+            let true_yaw = crate::ukf::wrap_pi(rate * t as f32 * 1e-6);
+            if degraded {
+                // The stuck axis is zeroed by the caller: no rate about z at all.
+                nav.propagate_unknown_rates(&imu(t), 0b100, 0.05).unwrap();
+            } else if k % 10 == 0 {
+                nav.coast(t, 0.05, 0.2).unwrap();
+            }
+            if k % 20 == 0 {
+                // A DVL at rest: zero body velocity.
+                nav.update_body_velocity(t, [0.0; 3], Some(0.01)).unwrap();
+            }
+            if k % 10 == 0 {
+                nav.update_heading(t, true_yaw, Some(0.01)).unwrap();
+                if k > 1000 {
+                    max_err = max_err.max(crate::ukf::wrap_pi(nav.nominal().yaw_rad() - true_yaw).abs());
+                }
+            }
+        }
+        (nav.solution(), max_err, is_pd(nav.covariance()))
+    };
+    let (deg, err, pd) = run(true);
+    assert!(pd);
+    let [s_roll, s_pitch, s_yaw] = deg.sigma_att_rad;
+    assert!(s_roll < 0.02 && s_pitch < 0.02, "tilt sigma {s_roll} {s_pitch}");
+    assert!(s_yaw > 0.005, "yaw sigma {s_yaw}: the unknown rate must show");
+    assert!(err < 3.0 * s_yaw.max(0.01) && err < 3f32.to_radians(), "heading error {err} vs sigma {s_yaw}");
+    assert!(deg.vel_ned_mps.iter().all(|v| v.abs() < 0.05), "{:?}", deg.vel_ned_mps);
+    let (coast, _, _) = run(false);
+    assert!(coast.sigma_att_rad[0] > 5.0 * s_roll, "coasting: tilt sigma {:?}", coast.sigma_att_rad);
+    // A bad walk is refused, nothing changed.
+    let mut nav = NavFilter15::new(NavConfig::default(), level_init()).unwrap();
+    nav.propagate(&imu(10_000)).unwrap();
+    let before = (*nav.nominal(), *nav.covariance(), nav.t_us());
+    assert_eq!(nav.propagate_unknown_rates(&imu(20_000), 0b100, f32::NAN), Err(NavError::NonFinite));
+    assert_eq!((*nav.nominal(), *nav.covariance(), nav.t_us()), before);
+}

@@ -193,6 +193,12 @@ fn run_native_on(
     if std::env::var_os("SUBNAV_COMPASS_WAVE_SIGMA").is_some_and(|v| v == "1") {
         app.estimator_mut().set_wave_sigma(true);
     }
+    // Evaluation switch: SUBNAV_NAV_FILTER=aukf runs the seed's adaptive UKF (Sage-Husa R on the
+    // heading, depth and DVL updates, fading with the persistence test) instead of the head's
+    // plain UKF (the wind-step comparison in docs/PERFORMANCE.md).
+    if std::env::var_os("SUBNAV_NAV_FILTER").is_some_and(|v| v == "aukf") {
+        app.estimator_mut().set_nav_config(subnav_core::head::nav_config().adaptive());
+    }
     let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;
