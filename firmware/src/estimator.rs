@@ -67,6 +67,54 @@ const ALIGNED_TILT_SIGMA_RAD: f32 = 1e-3;
 /// 1-sigma of the gyro bias left after the at-rest estimate (rad/s): 0.01 deg/s.
 const ALIGNED_GYRO_BIAS_SIGMA_RADPS: f32 = 1.75e-4;
 
+/// Memory of the adaptive heading R (exponential forgetting factor per fix): about
+/// `1 / (1 - b)` = 200 fixes, 20 s at the polarization rate (a sea state changes over minutes, a
+/// wave group lasts seconds).
+const ADAPTIVE_R_B: f32 = 0.995;
+
+/// The adaptive heading R (the AUKF's R adaptation, on the compass fixes): the fixes' error
+/// variance estimated online from the filter's heading innovations, `V_k = (1 - d_k) V_{k-1} +
+/// d_k e_k^2`, `d_k = (1 - b) / (1 - b^(k+1))` (Sage-Husa's weights), an innovation beyond the
+/// gate clipped to it first. The filter gets `sigma_solver^2 + n_corr max(model, V - sigma_solver^2)`:
+/// the part beyond the photodiode noise is correlated (waves over seconds, the model error over
+/// minutes), so it is inflated by the fixes in one correlation time like the fixed model error,
+/// and floored by that model error, because a compass bias never shows in the innovations (the
+/// filter's heading takes it). Two choices of the seed's Sage-Husa recursion are left out, both
+/// measured in the wind-step dives (docs/PERFORMANCE.md): subtracting the predicted `P_zz`
+/// (then `V` fell to its floor during the convergence and the filter claimed a heading sigma
+/// far below its error: 21-76 % within 3 sigma) and adapting the uninflated R. `V` adapts only
+/// while the filter's heading variance is below one fix's (inflated) model error: before that
+/// (an alignment without the compass, a heading reset) the innovations measure the filter.
+#[derive(Debug, Clone, Copy)]
+struct AdaptiveHeadingR {
+    on: bool,
+    b_pow: f32,
+    var_rad2: f32,
+}
+
+impl AdaptiveHeadingR {
+    fn new(on: bool) -> Self {
+        Self { on, b_pow: 1.0, var_rad2: HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD }
+    }
+
+    /// The variance the filter gets for a fix (see the type's doc).
+    fn filter_var_rad2(&self, solver_var_rad2: f32, model_var_rad2: f32, n_corr: f32) -> f32 {
+        let excess = self.var_rad2 - solver_var_rad2;
+        solver_var_rad2 + model_var_rad2.max(excess * n_corr)
+    }
+
+    /// One heading innovation `e` (rad) gated with innovation variance `s`.
+    fn observe(&mut self, e: f32, s: f32) {
+        let e2 = (e * e).min(subnav_core::ukf::gate::chi2_999::<f32>(1) * s);
+        self.b_pow *= ADAPTIVE_R_B;
+        let d = (1.0 - ADAPTIVE_R_B) / (1.0 - self.b_pow * ADAPTIVE_R_B);
+        let v = (1.0 - d) * self.var_rad2 + d * e2;
+        if v.is_finite() {
+            self.var_rad2 = v.max(HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD);
+        }
+    }
+}
+
 /// Circular statistics of a run of angles (compass fixes, or heading innovations).
 #[derive(Debug, Clone, Copy, Default)]
 struct AngleRun {
@@ -149,6 +197,7 @@ pub struct Estimator {
     /// only, which measured better in the sea dives (docs/PERFORMANCE.md); the report carries
     /// the wave part either way.
     wave_sigma: bool,
+    adaptive_r: AdaptiveHeadingR,
     /// The IMU's calibration (stored record), applied to every sample first.
     imu_correction: Option<crate::calibration::ImuCorrection>,
     /// Where the DVL sits and its scale factor (stored record, else the head's nominal).
@@ -186,6 +235,7 @@ impl Estimator {
             wave: compass::WaveSigma::default(),
             last_imu_us: None,
             wave_sigma: false,
+            adaptive_r: AdaptiveHeadingR::new(true),
             dvl_mounting: head::dvl_mounting(),
             dvl_scale: 1.0,
         }
@@ -240,6 +290,7 @@ impl Estimator {
         self.input_rejects = 0;
         self.last_gyro_radps = [0.0; 3];
         self.wave.reset();
+        self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
         self.last_imu_us = None;
     }
 
@@ -379,6 +430,12 @@ impl Estimator {
         self.wave_sigma = on;
     }
 
+    /// Whether the heading R adapts (see `AdaptiveHeadingR`; on by default; off: the solver's
+    /// sigma and the fixed model error, the fixed-R filter of the comparisons).
+    pub fn set_adaptive_heading_r(&mut self, on: bool) {
+        self.adaptive_r = AdaptiveHeadingR::new(on);
+    }
+
     /// The compass's wave-error tracker (its wave part is in every fix's sigma).
     pub fn wave(&self) -> &compass::WaveSigma {
         &self.wave
@@ -457,12 +514,21 @@ impl Estimator {
         let n_corr = HEADING_MODEL_CORR_S * head::POLARIZATION_RATE_HZ as f32;
         let model_var = HEADING_MODEL_SIGMA_RAD * HEADING_MODEL_SIGMA_RAD * n_corr;
         let measured = if measured_var_rad2.is_finite() { measured_var_rad2 } else { 0.0 };
-        let sigma = libm::sqrtf(solver_sigma_rad * solver_sigma_rad + model_var.max(measured));
+        let solver_var = solver_sigma_rad * solver_sigma_rad;
+        let mut sigma = libm::sqrtf(solver_var + model_var.max(measured));
         let Some(nav) = self.nav.as_mut().filter(|_| self.running) else {
             self.align_on_fix(heading_rad, sigma);
             return;
         };
         let yaw_before = nav.nominal().yaw_rad();
+        let p_yaw = nav.covariance().get((2, 2)).copied().unwrap_or(0.0);
+        if self.adaptive_r.on {
+            sigma = libm::sqrtf(self.adaptive_r.filter_var_rad2(solver_var, model_var, n_corr).max(solver_var + measured));
+            if p_yaw < self.adaptive_r.var_rad2 {
+                let e = subnav_core::ukf::wrap_pi(heading_rad - yaw_before);
+                self.adaptive_r.observe(e, p_yaw + sigma * sigma);
+            }
+        }
         match nav.update_heading(t_us, heading_rad, Some(sigma)) {
             Ok(rep) if rep.accepted => self.rejected_run = AngleRun::default(),
             Ok(_) => {
@@ -472,6 +538,8 @@ impl Estimator {
                     let yaw = nav.nominal().yaw_rad() + mean;
                     if nav.reset_heading(yaw, sigma).is_ok() {
                         self.heading_resets = self.heading_resets.wrapping_add(1);
+                        // The rejected run's innovations measured the wrong heading, not the compass.
+                        self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
                     }
                     self.rejected_run = AngleRun::default();
                 } else if self.rejected_run.n >= RESET_YAW_FIXES {
@@ -735,6 +803,41 @@ mod tests {
         assert!((yaw_deg(&e) - 160.0).abs() < 1.0, "after the reset: {}", yaw_deg(&e));
         let s = e.solution(0);
         assert!(s.att_nb_wxyz.iter().chain(s.pos_ned_m.iter()).all(|v| v.is_finite()));
+    }
+
+    /// The compass's scatter grows tenfold (0.3 -> 3 deg, white) after 60 s: the adaptive heading
+    /// R grows with it (the fixed R does not), the heading stays near the truth and within 3
+    /// of its sigma, and the R stays finite.
+    #[test]
+    fn the_adaptive_heading_r_follows_the_compass_scatter() {
+        let noisy = |sigma_deg: f32, k: u32| {
+            // A deterministic, roughly Gaussian sequence (sum of 4 uniforms from an LCG).
+            let mut x = k.wrapping_mul(2_654_435_761).wrapping_add(12_345);
+            let mut sum = 0.0;
+            for _ in 0..4 {
+                x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                sum += (x >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+            }
+            deg(40.0 + sigma_deg * sum * libm::sqrtf(3.0))
+        };
+        let r_sigma_deg = |e: &Estimator| libm::sqrtf(e.health(0).r_diag[0]).to_degrees();
+        let mut results = [(0.0f32, 0.0f32); 2];
+        for (on, out) in [true, false].into_iter().zip(results.iter_mut()) {
+            let mut e = Estimator::default();
+            e.set_adaptive_heading_r(on);
+            run(&mut e, 0.0, 60.0, |t| Some(noisy(0.3, (t * 10.0) as u32)));
+            let calm = r_sigma_deg(&e);
+            run(&mut e, 60.0, 120.0, |t| Some(noisy(3.0, (t * 10.0) as u32)));
+            let rough = r_sigma_deg(&e);
+            assert!(rough.is_finite() && calm.is_finite());
+            let err = (yaw_deg(&e) - 40.0).abs();
+            assert!(err < 1.0 && deg(err) < 3.0 * e.solution(0).sigma_att_rad[2], "heading error {err} deg");
+            *out = (calm, rough);
+        }
+        let [(calm, rough), (fixed_calm, fixed_rough)] = results;
+        assert!((calm - fixed_calm).abs() < 0.01 * fixed_calm, "calm: the model error's floor: {calm} vs {fixed_calm}");
+        assert!(rough > 2.0 * calm, "adaptive: {calm} -> {rough} deg");
+        assert!((fixed_rough - fixed_calm).abs() < 0.01 * fixed_calm, "fixed: {fixed_calm} -> {fixed_rough} deg");
     }
 
     #[test]

@@ -193,11 +193,15 @@ fn run_native_on(
     if std::env::var_os("SUBNAV_COMPASS_WAVE_SIGMA").is_some_and(|v| v == "1") {
         app.estimator_mut().set_wave_sigma(true);
     }
-    // Evaluation switch: SUBNAV_NAV_FILTER=aukf runs the seed's adaptive UKF (Sage-Husa R on the
-    // heading, depth and DVL updates, fading with the persistence test) instead of the head's
-    // plain UKF (the wind-step comparison in docs/PERFORMANCE.md).
+    // Evaluation switches (the wind-step comparison in docs/PERFORMANCE.md): SUBNAV_NAV_FILTER=aukf
+    // runs the seed's adaptive UKF (Sage-Husa R on the heading, depth and DVL updates, fading with
+    // the persistence test) instead of the head's UKF with its adaptive heading R.
     if std::env::var_os("SUBNAV_NAV_FILTER").is_some_and(|v| v == "aukf") {
         app.estimator_mut().set_nav_config(subnav_core::head::nav_config().adaptive());
+    }
+    // SUBNAV_NAV_FILTER=fixed-r: the heading R does not adapt (the head's filter with a fixed R).
+    if std::env::var_os("SUBNAV_NAV_FILTER").is_some_and(|v| v == "fixed-r") {
+        app.estimator_mut().set_adaptive_heading_r(false);
     }
     let link = InProcessLink { head, rx: VecDeque::new(), dec: FrameDecoder::new(), transactions: 0 };
     let bridge = RefCell::new(BridgeClient::new(link));

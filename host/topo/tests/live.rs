@@ -180,7 +180,13 @@ impl Firmware {
     }
 
     fn sample(&self, t_us: u64, truth: [f64; 2]) -> NavSample {
-        NavSample { t_us, pos_ned_m: [truth[0] + self.err[0], truth[1] + self.err[1], 10.0], cov_ne_m2: tri(&self.p), aided: true, vel_sigma_mps: 0.01 }
+        NavSample {
+            t_us,
+            pos_ned_m: [truth[0] + self.err[0], truth[1] + self.err[1], 10.0],
+            cov_ne_m2: tri(&self.p),
+            aided: true,
+            vel_sigma_mps: 0.01,
+        }
     }
 
     fn fuse(&mut self, truth: [f64; 2], fix: &MapFix) {

@@ -972,7 +972,9 @@ impl LiveMapper {
         }
         if !(nav.vel_sigma_mps <= cfg.max_fix_vel_sigma_mps) {
             self.stats.fixes_refused_velocity += 1;
-            return Recognition::Event(FrameOutcome::Refused { reason: Refusal::VelocityUnaided { node, vel_sigma_mps: nav.vel_sigma_mps } });
+            return Recognition::Event(FrameOutcome::Refused {
+                reason: Refusal::VelocityUnaided { node, vel_sigma_mps: nav.vel_sigma_mps },
+            });
         }
         let x0 = Vector2::new(n.pos_ned_m[0], n.pos_ned_m[1]);
         let math = match equivalent_fix(x0, &sym(n.cov_ne_m2), x1, &p1, &v, cfg.min_drift_m2) {
