@@ -536,16 +536,25 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
         self.inc = Increments::zero();
         if self.unknown_rate_var_body != Vector3::zeros() {
-            // The body axes' variances in the NED attitude error: P_att += R diag(v) R^T.
-            let r: Matrix3<f32> = self.nom.att_nb.to_rotation_matrix().into_inner();
-            let add = r * Matrix3::from_diagonal(&self.unknown_rate_var_body) * r.transpose();
-            let mut p = *self.ukf.p();
-            let mut blk = p.fixed_view_mut::<3, 3>(ATT, ATT);
-            blk += add;
-            self.ukf.set_p(p)?;
-            self.unknown_rate_var_body = Vector3::zeros();
+            self.add_unknown_rate_noise()?;
         }
         self.inject()
+    }
+
+    /// The attitude noise of gyro axes with unknown rates ([`Self::propagate_unknown_rates`]):
+    /// the body axes' variances in the NED attitude error, `P_att += R diag(v) R^T`. Out of line
+    /// and cold: its candidate `P` would otherwise sit in every predict's frame (the M4F's stack).
+    #[inline(never)]
+    #[cold]
+    fn add_unknown_rate_noise(&mut self) -> Result<(), NavError> {
+        let r: Matrix3<f32> = self.nom.att_nb.to_rotation_matrix().into_inner();
+        let add = r * Matrix3::from_diagonal(&self.unknown_rate_var_body) * r.transpose();
+        let mut p = *self.ukf.p();
+        let mut blk = p.fixed_view_mut::<3, 3>(ATT, ATT);
+        blk += add;
+        self.ukf.set_p(p)?;
+        self.unknown_rate_var_body = Vector3::zeros();
+        Ok(())
     }
 
     /// Degraded mode without the IMU (failed or stuck): advance to `t_us` at constant velocity;
