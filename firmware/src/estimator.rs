@@ -74,8 +74,11 @@ const ADAPTIVE_R_B: f32 = 0.995;
 
 /// The adaptive heading R (the AUKF's R adaptation, on the compass fixes): the fixes' error
 /// variance estimated online from the filter's heading innovations, `V_k = (1 - d_k) V_{k-1} +
-/// d_k e_k^2`, `d_k = (1 - b) / (1 - b^(k+1))` (Sage-Husa's weights), an innovation beyond the
-/// gate clipped to it first. The filter gets `sigma_solver^2 + n_corr max(model, V - sigma_solver^2)`:
+/// d_k e_k^2`, `d_k = (1 - b) / (1 - b^(k+1))` (Sage-Husa's weights), from the fixes the gate
+/// accepted only: learning from rejected ones (clipped to the gate, as the core's Sage-Husa does)
+/// widened the gate until a wrong heading's consistent rejected fixes were accepted one by one
+/// and never reset it (`a_wrong_heading_is_reset_after_a_run_of_consistent_rejected_fixes`);
+/// a sea state's scatter stays far inside the gate (the inflated R is 5 deg or more a fix). The filter gets `sigma_solver^2 + n_corr max(model, V - sigma_solver^2)`:
 /// the part beyond the photodiode noise is correlated (waves over seconds, the model error over
 /// minutes), so it is inflated by the fixes in one correlation time like the fixed model error,
 /// and floored by that model error, because a compass bias never shows in the innovations (the
@@ -524,13 +527,15 @@ impl Estimator {
         let p_yaw = nav.covariance().get((2, 2)).copied().unwrap_or(0.0);
         if self.adaptive_r.on {
             sigma = libm::sqrtf(self.adaptive_r.filter_var_rad2(solver_var, model_var, n_corr).max(solver_var + measured));
-            if p_yaw < self.adaptive_r.var_rad2 {
-                let e = subnav_core::ukf::wrap_pi(heading_rad - yaw_before);
-                self.adaptive_r.observe(e, p_yaw + sigma * sigma);
-            }
         }
         match nav.update_heading(t_us, heading_rad, Some(sigma)) {
-            Ok(rep) if rep.accepted => self.rejected_run = AngleRun::default(),
+            Ok(rep) if rep.accepted => {
+                self.rejected_run = AngleRun::default();
+                if self.adaptive_r.on && p_yaw < self.adaptive_r.var_rad2 {
+                    let e = subnav_core::ukf::wrap_pi(heading_rad - yaw_before);
+                    self.adaptive_r.observe(e, p_yaw + sigma * sigma);
+                }
+            }
             Ok(_) => {
                 let innovation = subnav_core::ukf::wrap_pi(heading_rad - yaw_before);
                 self.rejected_run.push(innovation, sigma);

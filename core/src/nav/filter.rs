@@ -318,9 +318,6 @@ pub struct NavFilter<const N: usize, const S: usize> {
     pub(crate) hist: History,
     pub(crate) delayed_updates: u32,
     pub(crate) delay_rejects: u32,
-    /// Attitude process noise (rad^2, per body axis) of gyro axes whose rate was unknown since
-    /// the last UKF predict ([`NavFilter::propagate_unknown_rates`]); added at the next one.
-    pub(crate) unknown_rate_var_body: Vector3<f32>,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -359,7 +356,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             hist,
             delayed_updates: 0,
             delay_rejects: 0,
-            unknown_rate_var_body: Vector3::zeros(),
         })
     }
 
@@ -391,7 +387,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.hist.restart(self.t_us, &self.nom);
         self.delayed_updates = 0;
         self.delay_rejects = 0;
-        self.unknown_rate_var_body = Vector3::zeros();
         Ok(())
     }
 
@@ -507,12 +502,16 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             Some(l) if imu.t_us > l => (imu.t_us - l) as f32 * 1e-6,
             _ => 0.0,
         };
+        let mut var_body = Vector3::zeros();
         for k in 0..3 {
             if unknown_axes & (1 << k) != 0 {
-                if let Some(v) = self.unknown_rate_var_body.get_mut(k) {
-                    *v += rate_rw * rate_rw * dt;
+                if let Some(v) = var_body.get_mut(k) {
+                    *v = rate_rw * rate_rw * dt;
                 }
             }
+        }
+        if var_body != Vector3::zeros() {
+            self.add_unknown_rate_noise(&var_body)?;
         }
         Ok(())
     }
@@ -535,9 +534,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // A refused predict keeps the increments: the next predict covers their interval too.
         self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
         self.inc = Increments::zero();
-        if self.unknown_rate_var_body != Vector3::zeros() {
-            self.add_unknown_rate_noise()?;
-        }
         self.inject()
     }
 
@@ -546,14 +542,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// and cold: its candidate `P` would otherwise sit in every predict's frame (the M4F's stack).
     #[inline(never)]
     #[cold]
-    fn add_unknown_rate_noise(&mut self) -> Result<(), NavError> {
+    fn add_unknown_rate_noise(&mut self, var_body: &Vector3<f32>) -> Result<(), NavError> {
         let r: Matrix3<f32> = self.nom.att_nb.to_rotation_matrix().into_inner();
-        let add = r * Matrix3::from_diagonal(&self.unknown_rate_var_body) * r.transpose();
+        let add = r * Matrix3::from_diagonal(var_body) * r.transpose();
         let mut p = *self.ukf.p();
         let mut blk = p.fixed_view_mut::<3, 3>(ATT, ATT);
         blk += add;
         self.ukf.set_p(p)?;
-        self.unknown_rate_var_body = Vector3::zeros();
         Ok(())
     }
 
