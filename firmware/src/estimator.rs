@@ -78,16 +78,18 @@ const ADAPTIVE_R_B: f32 = 0.995;
 /// accepted only: learning from rejected ones (clipped to the gate, as the core's Sage-Husa does)
 /// widened the gate until a wrong heading's consistent rejected fixes were accepted one by one
 /// and never reset it (`a_wrong_heading_is_reset_after_a_run_of_consistent_rejected_fixes`);
-/// a sea state's scatter stays far inside the gate (the inflated R is 5 deg or more a fix). The filter gets `sigma_solver^2 + n_corr max(model, V - sigma_solver^2)`:
-/// the part beyond the photodiode noise is correlated (waves over seconds, the model error over
+/// a sea state's scatter stays far inside the gate (the inflated R is 5 deg or more a fix).
+/// The filter gets `sigma_solver^2 + max(model, n_corr (V - sigma_solver^2))`: the part beyond the photodiode noise is correlated (waves over seconds, the model error over
 /// minutes), so it is inflated by the fixes in one correlation time like the fixed model error,
 /// and floored by that model error, because a compass bias never shows in the innovations (the
 /// filter's heading takes it). Two choices of the seed's Sage-Husa recursion are left out, both
 /// measured in the wind-step dives (docs/PERFORMANCE.md): subtracting the predicted `P_zz`
 /// (then `V` fell to its floor during the convergence and the filter claimed a heading sigma
-/// far below its error: 21-76 % within 3 sigma) and adapting the uninflated R. `V` adapts only
-/// while the filter's heading variance is below one fix's (inflated) model error: before that
-/// (an alignment without the compass, a heading reset) the innovations measure the filter.
+/// far below its error: 21-76 % within 3 sigma) and adapting the uninflated R. `V` is floored at
+/// the model error's per-fix variance and adapts only while the filter's heading variance is
+/// below it: before that (an alignment without the compass, a heading reset) the innovations
+/// measure the filter. The weights are computed by a running power of `b` (the core's
+/// `sage_husa_d` uses `powi`; the figures were measured with this form).
 #[derive(Debug, Clone, Copy)]
 struct AdaptiveHeadingR {
     on: bool,

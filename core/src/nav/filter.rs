@@ -538,8 +538,11 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     }
 
     /// The attitude noise of gyro axes with unknown rates ([`Self::propagate_unknown_rates`]):
-    /// the body axes' variances in the NED attitude error, `P_att += R diag(v) R^T`. Out of line
-    /// and cold: its candidate `P` would otherwise sit in every predict's frame (the M4F's stack).
+    /// the body axes' variances in the NED attitude error, `P_att += R diag(v) R^T`, at every
+    /// degraded sample (a `set_p`, so a Cholesky factor, per IMU sample: degraded mode only).
+    /// Not accumulated in the filter until the next predict: a 12-byte field grew the boot
+    /// path's frame by 1.5 KB. Out of line and cold, so its candidate `P` stays out of the
+    /// propagation's frame (the M4F's stack).
     #[inline(never)]
     #[cold]
     fn add_unknown_rate_noise(&mut self, var_body: &Vector3<f32>) -> Result<(), NavError> {
