@@ -56,17 +56,28 @@ impl RecordStore for MemStore {
     }
 }
 
-fn uplink(bytes: &[u8]) -> Vec<Uplink> {
-    let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
-    let mut out = Vec::new();
-    for &b in bytes {
-        match dec.push::<Uplink>(b) {
-            Decoded::Message(m) => out.push(m),
-            Decoded::Corrupt(e) => panic!("the head sent a corrupt frame: {e}"),
-            Decoded::Pending => {}
-        }
+/// The head's uplink decoded as it is written: each byte once, whatever the input's length.
+struct UplinkSeen {
+    dec: FrameDecoder<MAX_UPLINK_FRAME>,
+    read: usize,
+    msgs: Vec<Uplink>,
+}
+
+impl UplinkSeen {
+    fn new() -> Self {
+        Self { dec: FrameDecoder::new(), read: 0, msgs: Vec::new() }
     }
-    out
+    /// Decodes what the head wrote since the last call.
+    fn catch_up(&mut self, out: &Out) {
+        for &b in out.0.get(self.read..).unwrap_or(&[]) {
+            match self.dec.push::<Uplink>(b) {
+                Decoded::Message(m) => self.msgs.push(m),
+                Decoded::Corrupt(e) => panic!("the head sent a corrupt frame: {e}"),
+                Decoded::Pending => {}
+            }
+        }
+        self.read = out.0.len();
+    }
 }
 
 fn acks(msgs: &[Uplink]) -> Vec<CommandAck> {
@@ -86,6 +97,7 @@ fuzz_target!(|data: &[u8]| {
     let mut decoded: Vec<Downlink> = Vec::new();
     let mut sent_frames: Vec<Vec<u8>> = Vec::new();
     let mut t_us = 1u64;
+    let mut seen = UplinkSeen::new();
 
     // Feed bytes to the head and to the shadow decoder.
     let mut feed = |app: &mut App, out: &mut Out, t_us: u64, bytes: &[u8], decoded: &mut Vec<Downlink>| {
@@ -116,11 +128,13 @@ fuzz_target!(|data: &[u8]| {
                 if op % 4 == 2 && cmd.seq != 0 {
                     // The same frame again at once: no state change, no different ack.
                     let before = state(&app);
-                    let first: Vec<CommandAck> = acks(&uplink(&out.0)).into_iter().filter(|a| a.seq == cmd.seq).collect();
-                    let n = out.0.len();
+                    seen.catch_up(&out);
+                    let first: Vec<CommandAck> = acks(&seen.msgs).into_iter().filter(|a| a.seq == cmd.seq).collect();
+                    let n = seen.msgs.len();
                     feed(&mut app, &mut out, t_us, &frame, &mut decoded);
                     assert_eq!(state(&app), before, "a duplicate changed the state: {cmd:?}");
-                    for a in acks(&uplink(&out.0[n..])) {
+                    seen.catch_up(&out);
+                    for a in acks(seen.msgs.get(n..).unwrap_or(&[])) {
                         assert!(first.contains(&a), "a duplicate got another ack {a:?} than {first:?}");
                     }
                 }
@@ -140,7 +154,8 @@ fuzz_target!(|data: &[u8]| {
     app.service_store(t_us + 1, &mut store, &mut out);
     let _ = app.poll(t_us + 1, &mut out);
 
-    let msgs = uplink(&out.0);
+    seen.catch_up(&out);
+    let msgs = seen.msgs;
     let acked: BTreeSet<u16> = acks(&msgs).iter().map(|a| a.seq).collect();
     for c in &decoded {
         assert!(acked.contains(&c.seq), "command {c:?} decoded but never acknowledged");
