@@ -1,5 +1,6 @@
 //! `subnav record --tcp`: a live source (a TCP server sending frames in odd-sized pieces, with a
-//! corrupt frame) is recorded losslessly; the JSON summary counts what was seen.
+//! corrupt frame) is recorded losslessly; the JSON summary counts what was seen. A recorder
+//! started again mid-dive writes the next recording of the series and says what it missed.
 
 use std::io::Write;
 use std::process::Command;
@@ -72,4 +73,75 @@ fn record_without_a_source_says_what_to_give() {
     assert!(!o.status.success());
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("--tcp") && e.contains("--serial"), "{e}");
+}
+
+fn nav_frame(t_us: u64, buf: &mut [u8]) -> Vec<u8> {
+    let nav = NavSolution {
+        t_us,
+        mode: NavMode::Aided,
+        pos_ned_m: [0.0, 0.0, 5.0],
+        vel_ned_mps: [1.0, 0.0, 0.0],
+        att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
+        sigma_pos_m: [1.0; 3],
+        sigma_vel_mps: [0.1; 3],
+        sigma_att_rad: [0.01; 3],
+        cov_ne_m2: 0.0,
+    };
+    encode(&Uplink::Nav(nav), buf).unwrap().to_vec()
+}
+
+/// Serve `bytes` once on a fresh port and record them to `out`; returns stderr.
+fn record_once(bytes: Vec<u8>, out: &std::path::Path) -> String {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let server = std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        s.write_all(&bytes).unwrap();
+    });
+    let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["record", "--tcp", &addr, "-o"]).arg(out).output().unwrap();
+    server.join().unwrap();
+    let e = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{e}");
+    e
+}
+
+/// The host is killed 20 s into a dive and started again at 50 s with the same command line:
+/// the first recording stays as it was, the second joins the running head mid-frame, and the
+/// 30 s neither has are reported.
+#[test]
+fn a_restarted_recorder_starts_the_next_recording_and_reports_the_gap() {
+    let mut buf = [0u8; MAX_UPLINK_FRAME];
+    let boot = Uplink::Boot(boot_message(Board::Stm32F405, [1, 0, 0], 0, CalibrationInUse::NO_STORE, ResetCause::PowerOn));
+    let mut before = encode(&boot, &mut buf).unwrap().to_vec();
+    for i in 0..=200 {
+        before.extend(nav_frame(i * 100_000, &mut buf));
+    }
+    // The new host's first bytes are the end of a frame.
+    let mut after = nav_frame(49_900_000, &mut buf).split_off(9);
+    for i in 500..600 {
+        after.extend(nav_frame(i * 100_000, &mut buf));
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("dive.snrec");
+    let e = record_once(before, &out);
+    assert!(!e.contains("joined"), "{e}");
+    let first = std::fs::read(&out).unwrap();
+
+    let e = record_once(after, &out);
+    let second = dir.path().join("dive.2.snrec");
+    assert!(e.contains(&format!("{} exists: recording to {}", out.display(), second.display())), "{e}");
+    assert!(
+        e.contains(&format!(
+            "joined a running head at head time 50.0 s: {} ends at 20.0 s, so 30.0 s of telemetry were not recorded",
+            out.display()
+        )),
+        "{e}"
+    );
+    assert_eq!(std::fs::read(&out).unwrap(), first, "the first recording is untouched");
+    let l = read_file(&second).unwrap();
+    assert!(l.stream_bytes(Stream::Uplink).ends_with(&nav_frame(59_900_000, &mut buf)));
+    // `decode` of the second recording says the same.
+    let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["decode", "--quiet", "--file"]).arg(&second).output().unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && e.contains("coverage: joined a running head at head time 50.0 s"), "{e}");
 }

@@ -110,10 +110,16 @@ pub fn log(l: &LogLine, format: Format) {
 
 pub fn summary(stats: &LinkStats, trailing: usize, format: Format) {
     match format {
-        Format::Text => eprintln!(
-            "summary: {} bytes, {} frames decoded, {} corrupt, {} boot(s), {} incompatible, {} trailing bytes of an unfinished frame",
-            stats.bytes, stats.frames_ok, stats.frames_bad, stats.boots, stats.incompatible_boots, trailing
-        ),
+        Format::Text => {
+            eprintln!(
+                "summary: {} bytes, {} frames decoded, {} corrupt, {} boot(s), {} incompatible, {} trailing bytes of an unfinished frame",
+                stats.bytes, stats.frames_ok, stats.frames_bad, stats.boots, stats.incompatible_boots, trailing
+            );
+            let note = stats.coverage_note();
+            if !note.is_empty() {
+                eprintln!("coverage: {note}");
+            }
+        }
         Format::Json => println!("{}", json!({"type": "summary", "stats": stats, "trailing_bytes": trailing})),
     }
 }

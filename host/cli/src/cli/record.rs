@@ -23,7 +23,9 @@ use subnav_link::uplink::{LinkEvent, LinkStats, UplinkDecoder};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Output recording (e.g. dive.snrec).
+    /// Output recording (e.g. dive.snrec). If it exists, the recording goes to the next free
+    /// name of its series (dive.2.snrec, dive.3.snrec, ...): a recorder started again mid-dive
+    /// never replaces what was recorded, and says what it missed.
     #[arg(long, short)]
     pub out: PathBuf,
     /// A TCP address to connect to, e.g. QEMU started with `-serial tcp::4444,server=on`.
@@ -109,7 +111,14 @@ impl LiveStatus {
     }
 }
 
-pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
+    let first = args.out.clone();
+    let k = subnav_link::record::series(&first).len() + 1;
+    args.out = subnav_link::record::series_member(&first, k);
+    let previous = (k > 1).then(|| subnav_link::record::series_member(&first, k - 1));
+    if let Some(p) = &previous {
+        eprintln!("{} exists: recording to {} (nothing recorded is replaced)", p.display(), args.out.display());
+    }
     if let Some(chip) = &args.chip {
         return record_rtt(&args, chip, format);
     }
@@ -146,11 +155,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             write_err = Some(e);
             return false;
         }
+        let was_first = dec.stats().frames_ok == 0;
         dec.feed(bytes, |e| {
             super::live::link_event(live.as_ref(), &e);
             status.see(&e)
         });
         status.link = dec.stats();
+        if was_first && status.link.frames_ok > 0 && status.link.joined_running_head {
+            bar.suspend(|| eprintln!("{}", joined_note(previous.as_deref(), &status.link)));
+        }
         status.seconds = started.elapsed().as_secs_f64();
         bar.set_message(status.line());
         limit.is_none_or(|l| started.elapsed() < l)
@@ -171,9 +184,35 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// What a recorder that joined a running head missed: since the head's boot, or since the end
+/// of the series' previous recording.
+fn joined_note(previous: Option<&std::path::Path>, now: &LinkStats) -> String {
+    let at = now.first_head_us.map_or(0.0, |t| t as f64 * 1e-6);
+    let gap = previous.map(|p| (p.display(), subnav_link::record::uplink_stats(p)));
+    match gap {
+        Some((p, Ok(before))) => match before.gap_to(now) {
+            Some((a, b)) => format!(
+                "joined a running head at head time {at:.1} s: {} ends at {:.1} s, so {:.1} s of telemetry were not recorded",
+                p,
+                a as f64 * 1e-6,
+                (b - a) as f64 * 1e-6
+            ),
+            None => format!("joined a running head at head time {at:.1} s; {p} is of an earlier boot or overlaps this one"),
+        },
+        Some((p, Err(e))) => format!("joined a running head at head time {at:.1} s; the previous recording {p} is unreadable: {e:#}"),
+        None => format!("joined a running head at head time {at:.1} s (no Boot seen): its first {at:.1} s are not recorded"),
+    }
+}
+
 fn finish(args: &Args, status: &LiveStatus, format: Format) {
     match format {
-        Format::Text => eprintln!("recorded {} in {:.1} s: {}", args.out.display(), status.seconds, status.line()),
+        Format::Text => {
+            eprintln!("recorded {} in {:.1} s: {}", args.out.display(), status.seconds, status.line());
+            let note = status.link.coverage_note();
+            if !note.is_empty() {
+                eprintln!("coverage: {note}");
+            }
+        }
         Format::Json => println!("{}", json!({"type": "summary", "recording": args.out.display().to_string(), "status": status})),
     }
 }

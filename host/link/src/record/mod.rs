@@ -27,6 +27,8 @@ pub mod writer;
 pub use reader::{Damage, Item, Loaded, ReadStats, Reader, RecordError, read_bytes, read_file};
 pub use writer::Writer;
 
+use std::path::{Path, PathBuf};
+
 use serde::{Deserialize, Serialize};
 
 /// First 8 bytes of a recording. The `\r\n` and `\x1a` catch text-mode mangling, like PNG's.
@@ -145,4 +147,58 @@ pub fn looks_like_recording(head: &[u8]) -> bool {
     }
     let flipped_bits: u32 = head.iter().zip(MAGIC).map(|(a, b)| (a ^ b).count_ones()).sum();
     MAGIC.starts_with(head) || head.starts_with(&MAGIC[..6]) || (head.len() == MAGIC.len() && flipped_bits <= 2)
+}
+
+/// The `k`-th recording of a series (from 1): `dive.snrec`, `dive.2.snrec`, `dive.3.snrec`, ...
+pub fn series_member(first: &Path, k: usize) -> PathBuf {
+    if k <= 1 {
+        return first.to_path_buf();
+    }
+    let stem = first.file_stem().map_or_else(|| "recording".into(), |s| s.to_string_lossy().into_owned());
+    let name = match first.extension() {
+        Some(ext) => format!("{stem}.{k}.{}", ext.to_string_lossy()),
+        None => format!("{stem}.{k}"),
+    };
+    first.with_file_name(name)
+}
+
+/// The recordings of the series that starts at `first` which exist, in order (stops at the
+/// first missing member).
+pub fn series(first: &Path) -> Vec<PathBuf> {
+    (1..).map(|k| series_member(first, k)).take_while(|p| p.exists()).collect()
+}
+
+/// Where a new recording of the series goes: the first member that does not exist, so that a
+/// recorder started again (a host restarted mid-dive) never replaces what was recorded.
+pub fn next_in_series(first: &Path) -> PathBuf {
+    series_member(first, series(first).len() + 1)
+}
+
+/// The uplink of a recording file, decoded only for its counts and its coverage of the head's
+/// time.
+pub fn uplink_stats(path: &Path) -> anyhow::Result<crate::uplink::LinkStats> {
+    let loaded = read_file(path)?;
+    let mut dec = crate::uplink::UplinkDecoder::new();
+    for c in loaded.chunks.iter().filter(|c| c.stream == Stream::Uplink) {
+        dec.feed(&c.data, |_| {});
+    }
+    Ok(dec.stats())
+}
+
+#[cfg(test)]
+mod series_tests {
+    use super::*;
+
+    #[test]
+    fn a_series_never_reuses_a_name() {
+        let d = tempfile::tempdir().unwrap();
+        let first = d.path().join("dive.snrec");
+        assert_eq!(next_in_series(&first), first);
+        std::fs::write(&first, b"x").unwrap();
+        assert_eq!(next_in_series(&first), d.path().join("dive.2.snrec"));
+        std::fs::write(d.path().join("dive.2.snrec"), b"x").unwrap();
+        assert_eq!(next_in_series(&first), d.path().join("dive.3.snrec"));
+        assert_eq!(series(&first), [first.clone(), d.path().join("dive.2.snrec")]);
+        assert_eq!(series_member(&d.path().join("log"), 2), d.path().join("log.2"));
+    }
 }
