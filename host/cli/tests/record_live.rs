@@ -144,4 +144,6 @@ fn a_restarted_recorder_starts_the_next_recording_and_reports_the_gap() {
     let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["decode", "--quiet", "--file"]).arg(&second).output().unwrap();
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success() && e.contains("coverage: joined a running head at head time 50.0 s"), "{e}");
+    assert!(e.contains("series: continues") && e.contains("30.0 s of telemetry are in neither"), "{e}");
+    assert_eq!(l.meta.continues.as_deref(), Some("dive.snrec"));
 }

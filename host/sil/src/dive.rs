@@ -64,6 +64,9 @@ pub struct DiveResult {
     /// Each fault class the scenario injects: whether the head (or the map) reported it, and how
     /// long the estimate took to be consistent again after it (see [`fault_classes`]).
     pub fault_classes: Vec<FaultClassReport>,
+    /// The recordings the host wrote (more than one when it was restarted mid-dive).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub recordings: Vec<RecordingSpan>,
     /// The aided samples, for the map's classes' recovery times.
     #[serde(skip)]
     consistency: Vec<Sample>,
@@ -87,7 +90,59 @@ pub struct FaultClassReport {
     pub sigma_recovery_s: Option<f64>,
 }
 
+/// One recording of a dive, as a later reader finds it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RecordingSpan {
+    pub path: std::path::PathBuf,
+    /// Head time of its first and last message, s.
+    pub first_head_s: f64,
+    pub last_head_s: f64,
+    /// It starts without the head's Boot: its host joined a running head.
+    pub joined_running_head: bool,
+    /// The head time between the previous recording's end and this one's start, s (when it
+    /// continues the same boot).
+    pub gap_before_s: Option<f64>,
+}
+
+impl RecordingSpan {
+    /// Read each recording's uplink for its span and the gaps between them.
+    pub fn of(paths: &[std::path::PathBuf]) -> Result<Vec<RecordingSpan>> {
+        let stats = paths.iter().map(|p| subnav_link::record::uplink_stats(p)).collect::<Result<Vec<_>>>()?;
+        Ok(paths
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let s = &stats[k];
+                let gap = k.checked_sub(1).and_then(|j| stats[j].gap_to(s));
+                RecordingSpan {
+                    path: p.clone(),
+                    first_head_s: s.first_head_us.map_or(f64::NAN, |t| t as f64 * 1e-6),
+                    last_head_s: s.last_head_us.map_or(f64::NAN, |t| t as f64 * 1e-6),
+                    joined_running_head: s.joined_running_head,
+                    gap_before_s: gap.map(|(a, b)| (b - a) as f64 * 1e-6),
+                }
+            })
+            .collect())
+    }
+}
+
 impl DiveResult {
+    /// Attach the recordings the host wrote; a restarted host's shows in its fault class.
+    pub fn with_recordings(mut self, paths: &[std::path::PathBuf]) -> Result<Self> {
+        self.recordings = RecordingSpan::of(paths)?;
+        if let (Some(c), Some(r)) =
+            (self.fault_classes.iter_mut().find(|c| c.class == HOST_RESTARTED), self.recordings.iter().find(|r| r.gap_before_s.is_some()))
+        {
+            c.evidence.push_str(&format!(
+                "; the restarted host's recording {} joined the running head at {:.1} s, {:.1} s after the one before ends",
+                r.path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                r.first_head_s,
+                r.gap_before_s.unwrap_or(f64::NAN)
+            ));
+        }
+        Ok(self)
+    }
+
     /// Attach the map's report, and score the camera's fault classes from its counters.
     pub fn with_map(mut self, map: Option<crate::map_loop::MapLoopReport>, sc: &Scenario) -> Self {
         if let (Some(m), Some(c)) = (&map, &sc.camera) {
@@ -194,6 +249,9 @@ impl LiveStatus {
     }
 }
 
+/// The fault class of a host process killed and started again mid-dive.
+pub const HOST_RESTARTED: &str = "host killed and restarted";
+
 /// How to run a dive.
 #[derive(Default)]
 pub struct DiveOptions<'a> {
@@ -214,7 +272,8 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     cfg.run_ms = Some((sc.duration_s * 1000.0) as u64);
     cfg.timeout = opts.timeout.unwrap_or(Duration::from_secs(900));
     cfg.board_args = sc.board_args();
-    let recorder = opts.record.map(|p| QemuRecorder::start(&mut cfg, p)).transpose()?;
+    let outage_head_us = sc.faults.host_outage_s.map(|(a, b)| ((a * 1e6) as u64, (b * 1e6) as u64));
+    let recorder = opts.record.map(|p| QemuRecorder::start_with_host_outage(&mut cfg, p, outage_head_us)).transpose()?;
     let mut msgs = Vec::new();
     // Fixes reach the firmware through the bridge's modem (UART 1) at their arrival time; the
     // recording gets each delivered frame in its downlink stream.
@@ -253,9 +312,7 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     // The runner hands the chip models back; their modem holds a clone of the recording's tap,
     // which must be gone before the recording can finish.
     let result = result.map(|(outcome, _head)| outcome);
-    if let Some(r) = recorder {
-        r.finish()?;
-    }
+    let recordings = recorder.map(QemuRecorder::finish).transpose()?.unwrap_or_default();
     if let Some(m) = &map {
         m.close();
     }
@@ -264,7 +321,7 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
         anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
     }
     let r = evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions);
-    Ok(r.with_map(map.map(|m| m.report()), sc))
+    r.with_map(map.map(|m| m.report()), sc).with_recordings(&recordings)
 }
 
 /// The truth of a dive as CSV (`t_s,n_m,e_m,d_m,yaw_rad`, the format `subnav report --truth`
@@ -313,6 +370,7 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         map: None,
         longest_nav_gap_s: 0.0,
         fault_classes: Vec::new(),
+        recordings: Vec::new(),
         consistency: Vec::new(),
     };
     let mut last_nav_s: Option<f64> = None;
@@ -527,7 +585,7 @@ pub fn fault_classes(sc: &Scenario, msgs: &[Uplink], longest_nav_gap_s: f64) -> 
         let after = msgs.iter().any(|m| matches!(m, Uplink::Nav(n) if n.t_us as f64 * 1e-6 >= w.1));
         let n = usize::from(after && longest_nav_gap_s >= w.1 - w.0 - 1.0);
         push(
-            "host killed and restarted",
+            HOST_RESTARTED,
             Some(w),
             n,
             format!("gap in the received navigation of {longest_nav_gap_s:.1} s (streaming resumed: {after})"),

@@ -257,13 +257,17 @@ fn run_native_on(
 }
 
 impl NativeRun {
-    /// Write the run as a recording (uplink and downlink frames; the "host time" of each chunk
-    /// is the firmware time it was written at, plus `t0_unix_us`).
-    pub fn write_recording(&self, path: &std::path::Path, sc: &Scenario) -> anyhow::Result<()> {
-        use subnav_link::record::{Meta, Stream, Writer};
+    /// Write the run as its host recorded it (uplink and downlink frames; the "host time" of
+    /// each chunk is the firmware time it was written at, plus the scenario's start). A host
+    /// killed and restarted mid-dive (`FaultPlan::host_outage_s`) writes two recordings: `path`
+    /// up to the kill and the series' next (`dive.2.snrec`) from the restart. Returns them.
+    pub fn write_recording(&self, path: &std::path::Path, sc: &Scenario) -> anyhow::Result<Vec<std::path::PathBuf>> {
+        use subnav_link::record::tap::HostRecorder;
+        use subnav_link::record::{Meta, Stream};
         let mut meta = Meta::new(format!("native software-in-the-loop, scenario seed {}", sc.seed));
         meta.board_args = sc.board_args();
-        let mut w = Writer::create(path, &meta)?;
+        let outage_head_us = sc.faults.host_outage_s.map(|(a, b)| ((a * 1e6) as u64, (b * 1e6) as u64));
+        let mut w = HostRecorder::create(path, meta, outage_head_us)?;
         let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
         let mut down = self.downlink.iter().peekable();
         for (t, f) in &self.frames {
@@ -275,7 +279,7 @@ impl NativeRun {
         for (td, d) in down {
             w.chunk(Stream::Downlink, t0 + td, d)?;
         }
-        w.flush()
+        w.finish()
     }
 }
 

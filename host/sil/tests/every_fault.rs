@@ -3,8 +3,9 @@
 //! sun, the DVL's bottom lock and its sentences, the camera, far recognitions, USBL multipath, the
 //! host process gone for 30 s). The run completes, nothing is NaN, every class is reported, the
 //! estimate is consistent (position and heading within 3 reported sigma) at least 95 % of the
-//! time and is consistent again after each fault that ends. The hour-long version is a
-//! documented command (docs/RELIABILITY.md).
+//! time and is consistent again after each fault that ends. The host's recording stops at the
+//! kill; the restarted host's recording joins the running head and the gap is reported. The
+//! hour-long version is a documented command (docs/RELIABILITY.md).
 
 use subnav_sil::Scenario;
 
@@ -12,7 +13,13 @@ use subnav_sil::Scenario;
 fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     let sc = Scenario::every_fault(24, 600.0);
     sc.validate().expect("a valid scenario");
-    let r = subnav_sil::sil::run_dive_native(&sc);
+    let run = subnav_sil::sil::run_native_observed(&sc, None, true, None);
+    let dir = tempfile::tempdir().unwrap();
+    let recordings = run.write_recording(&dir.path().join("dive.snrec"), &sc).expect("writing the recordings");
+    let r = subnav_sil::dive::evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
+        .with_map(run.map, &sc)
+        .with_recordings(&recordings)
+        .expect("reading the recordings back");
     for c in &r.fault_classes {
         let s = |x: Option<f64>| x.map_or("-".into(), |x| format!("{x:.1}"));
         eprintln!(
@@ -64,6 +71,21 @@ fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     assert_eq!(r.fault_classes.len(), expected.len());
     // The host was gone for 30 s; the head streamed on (what came after the gap was received).
     assert!(r.longest_nav_gap_s >= 29.0 && r.longest_nav_gap_s < 31.0, "gap {} s", r.longest_nav_gap_s);
+    // Two recordings: the first host's, from the Boot to the kill; the restarted host's, from
+    // the restart to the end, without a Boot; the time between them reported.
+    let (a, b) = sc.faults.host_outage_s.expect("an outage in the scenario");
+    assert_eq!(recordings, [dir.path().join("dive.snrec"), dir.path().join("dive.2.snrec")]);
+    let [first, second] = &r.recordings[..] else { panic!("{:?}", r.recordings) };
+    assert!(!first.joined_running_head && first.first_head_s < 1.0, "{first:?}");
+    assert!((first.last_head_s - a).abs() < 0.2, "the first host recorded until {} s, killed at {a} s", first.last_head_s);
+    assert!(second.joined_running_head && (second.first_head_s - b).abs() < 0.2, "{second:?}");
+    assert!((second.last_head_s - sc.duration_s).abs() < 1.0, "{second:?}");
+    let gap = second.gap_before_s.expect("the gap between the recordings");
+    assert!((gap - (b - a)).abs() < 0.3, "gap {gap} s for an outage of {} s", b - a);
+    let host = r.fault_classes.iter().find(|c| c.class == subnav_sil::dive::HOST_RESTARTED).unwrap();
+    assert!(host.evidence.contains("dive.2.snrec joined the running head"), "{}", host.evidence);
+    let meta = subnav_link::record::read_file(&second.path).unwrap().meta;
+    assert_eq!(meta.continues.as_deref(), Some("dive.snrec"));
     assert!(r.within_3_sigma >= 0.95, "position within 3 sigma {}", r.within_3_sigma);
     assert!(r.heading_within_3_sigma >= 0.95, "heading within 3 sigma {}", r.heading_within_3_sigma);
 }

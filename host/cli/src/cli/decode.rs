@@ -148,5 +148,22 @@ fn run_recording(path: &std::path::Path, args: &Args, format: Format) -> Result<
         eprintln!("warning: {damaged} damaged region(s) in the recording were skipped");
     }
     print::summary(&dec.stats(), dec.trailing_bytes(), format);
+    if let Some(name) = reader.meta.continues.as_deref() {
+        // The next of a series (a host restarted mid-dive): how much of the head's time is in
+        // neither recording.
+        let before = path.with_file_name(name);
+        let note = match subnav_link::record::uplink_stats(&before) {
+            Ok(b) => match b.gap_to(&dec.stats()) {
+                Some((x, y)) => format!("continues {}, which ends at head time {:.1} s: {:.1} s of telemetry are in neither", before.display(), x as f64 * 1e-6, (y - x) as f64 * 1e-6),
+                None => format!("continues {}, of an earlier boot or overlapping this one", before.display()),
+            },
+            Err(e) => format!("continues {}, which is unreadable: {e:#}", before.display()),
+        };
+        if format == Format::Text {
+            eprintln!("series: {note}");
+        } else {
+            println!("{}", serde_json::json!({"type": "series", "continues": before.display().to_string(), "note": note}));
+        }
+    }
     Ok(ExitCode::SUCCESS)
 }

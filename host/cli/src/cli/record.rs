@@ -131,6 +131,7 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
     };
     let mut meta = Meta::new(source.to_string());
     meta.elf = args.elf.as_ref().map(|p| p.display().to_string());
+    meta.continues = previous.as_ref().and_then(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned());
     if let Some(elf) = &args.elf {
         subnav_link::output::refuse_input_as_output("--out", &args.out, &[elf])?;
     }

@@ -229,10 +229,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         };
         let observer: Option<subnav_sil::sil::NativeObserver> = if feed.is_some() || args.speed.is_some() { Some(&observe) } else { None };
         let run = run_native_observed(&sc, Some(&progress), record.is_some(), observer);
-        if let Some(p) = &record {
-            run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?;
-        }
-        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc)
+        let recordings = match &record {
+            Some(p) => run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?,
+            None => Vec::new(),
+        };
+        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc).with_recordings(&recordings)?
     } else {
         let elf = args.elf.as_ref().context("--elf is required without --native")?;
         if !elf.exists() {
@@ -283,7 +284,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 /// The report of a run: its recording with the truth, and the map's nodes and the closures the
 /// head accepted. Returns the HTML page.
 fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: &DiveResult) -> Result<PathBuf> {
-    let (session, _note) = super::export::load_session(rec, None)?;
+    let (mut session, _note) = super::export::load_session(rec, None)?;
+    // A host restarted mid-dive wrote the rest of the dive to the next recordings.
+    for next in r.recordings.iter().skip(1) {
+        session.append(super::export::load_session(&next.path, None)?.0);
+    }
     let (truth, _) = subnav_link::record::session::parse_truth_csv(&truth_csv(sc, 0.1));
     let mut data = subnav_report::ReportData::from_session(&session, Some(truth));
     if let Some(m) = &r.map {
@@ -329,6 +334,14 @@ fn print_summary(r: &DiveResult) {
     println!("bus transactions      {}  corrupt frames {}  non-finite values {}", r.bus_transactions, r.corrupt_frames, r.nonfinite_values);
     for (source, kind, count) in &r.faults {
         println!("fault                 {source} {kind} x{count}");
+    }
+    for rec in &r.recordings {
+        let how = match (rec.joined_running_head, rec.gap_before_s) {
+            (true, Some(g)) => format!(", joined the running head {g:.1} s after the recording before ends"),
+            (true, None) => ", joined a running head".to_string(),
+            _ => String::new(),
+        };
+        println!("recording             {}: head time {:.1}-{:.1} s{how}", rec.path.display(), rec.first_head_s, rec.last_head_s);
     }
     if r.longest_nav_gap_s > 1.0 {
         println!("navigation gap        {:.1} s (the longest stretch the host received no solution)", r.longest_nav_gap_s);

@@ -104,6 +104,10 @@ pub struct Meta {
     /// commands, which never cross the downlink (`subnav replay` needs them).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub board_args: Vec<String>,
+    /// The file name of the recording this one continues (a host restarted mid-dive records
+    /// the next of the series: `dive.2.snrec` continues `dive.snrec`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub continues: Option<String>,
 }
 
 impl Meta {
@@ -114,6 +118,7 @@ impl Meta {
             writer: format!("subnav {}", env!("CARGO_PKG_VERSION")),
             elf: None,
             board_args: Vec::new(),
+            continues: None,
         }
     }
 }

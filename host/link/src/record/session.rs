@@ -124,6 +124,37 @@ impl Session {
         s
     }
 
+    /// Append the next recording of a series (a host restarted mid-dive): its items follow
+    /// this one's; the counts add up; the metadata stays the first recording's.
+    pub fn append(&mut self, next: Session) {
+        self.messages.extend(next.messages);
+        self.corrupt.extend(next.corrupt);
+        self.incompatible.extend(next.incompatible);
+        self.logs.extend(next.logs);
+        self.defmt_bytes += next.defmt_bytes;
+        self.defmt_malformed += next.defmt_malformed;
+        self.downlink.extend(next.downlink);
+        self.downlink_corrupt += next.downlink_corrupt;
+        self.truth.extend(next.truth);
+        self.truth_bad_lines += next.truth_bad_lines;
+        let (a, b) = (self.link, next.link);
+        self.link.bytes += b.bytes;
+        self.link.frames_ok += b.frames_ok;
+        self.link.frames_bad += b.frames_bad;
+        self.link.boots += b.boots;
+        self.link.incompatible_boots += b.incompatible_boots;
+        self.link.last_head_us = b.last_head_us.or(a.last_head_us);
+        // The time between the recordings is a gap like any other.
+        let between = a.gap_to(&b).filter(|(x, y)| y - x > crate::uplink::HEAD_GAP_US);
+        self.link.head_gaps += b.head_gaps + u64::from(between.is_some());
+        self.link.longest_head_gap_us = [a.longest_head_gap_us, b.longest_head_gap_us, between]
+            .into_iter()
+            .flatten()
+            .max_by_key(|(x, y)| y - x);
+        self.trailing_bytes = next.trailing_bytes;
+        self.damage.extend(next.damage);
+    }
+
     /// Messages of one kind (`Uplink::kind`), in order.
     pub fn of_kind<'a>(&'a self, kind: &'a str) -> impl Iterator<Item = &'a Timed<Uplink>> + 'a {
         self.messages.iter().filter(move |m| m.item.kind() == kind)

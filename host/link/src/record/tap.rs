@@ -1,19 +1,108 @@
-//! Recording a QEMU run: a thread that writes the runner's raw byte chunks
-//! ([`QemuConfig::raw_tap`](crate::qemu::QemuConfig::raw_tap)) into a recording as they come.
+//! Recording a simulated run as its host would: a thread that writes the QEMU runner's raw byte
+//! chunks ([`QemuConfig::raw_tap`](crate::qemu::QemuConfig::raw_tap)) into a recording as they
+//! come, and [`HostRecorder`], which also plays a host process killed and started again
+//! mid-dive (the dead host records nothing; the new one starts the next recording of the
+//! series, which joins the running head).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::thread::JoinHandle;
 
 use anyhow::{Result, anyhow};
 
-use super::{Meta, Stream, Writer};
+use super::{Meta, Stream, Writer, series_member};
+use crate::output::AtomicFile;
 use crate::qemu::{QemuConfig, RawBytes};
+use crate::uplink::UplinkDecoder;
+
+/// The recordings of a run's host: one per life of the host process.
+pub struct HostRecorder {
+    first: PathBuf,
+    meta: Meta,
+    /// The host is gone from head time `.0` to `.1`, µs.
+    outage_head_us: Option<(u64, u64)>,
+    life: Life,
+    /// The world's view of the head's time (decoded from the uplink as it passes).
+    world: UplinkDecoder,
+    latest_head_us: u64,
+    written: Vec<PathBuf>,
+}
+
+enum Life {
+    Alive(Box<Writer<AtomicFile>>),
+    /// Killed; the next life starts with the first uplink bytes at or after the outage's end.
+    Dead,
+}
+
+impl HostRecorder {
+    /// The first recording goes to `path`, under a temporary name until its first bytes (a run
+    /// that fails before leaves an old file there untouched); after a restart, the next one goes
+    /// to the series' next name (`dive.2.snrec`), its metadata naming the one it continues.
+    pub fn create(path: &Path, meta: Meta, outage_head_us: Option<(u64, u64)>) -> Result<Self> {
+        let w = Writer::create_atomic(path, &meta)?;
+        Ok(Self {
+            first: path.to_path_buf(),
+            meta,
+            outage_head_us,
+            life: Life::Alive(Box::new(w)),
+            world: UplinkDecoder::new(),
+            latest_head_us: 0,
+            written: Vec::new(),
+        })
+    }
+
+    /// One chunk that crossed the link at host time `t_host_us`: recorded if the host is alive.
+    pub fn chunk(&mut self, stream: Stream, t_host_us: u64, data: &[u8]) -> Result<()> {
+        if stream == Stream::Uplink {
+            let latest = &mut self.latest_head_us;
+            self.world.feed(data, |e| {
+                if let crate::uplink::LinkEvent::Message(m) = e {
+                    *latest = m.t_us().map_or(*latest, |t| t.max(*latest));
+                }
+            });
+        }
+        let t = self.latest_head_us;
+        let Some((killed_at, back_at)) = self.outage_head_us else { return self.write(stream, t_host_us, data) };
+        if t >= killed_at {
+            // Killed at `killed_at`: what was written is on disk (each chunk is).
+            if let (Life::Alive(_), true) = (&self.life, self.written.is_empty()) {
+                if let Life::Alive(w) = std::mem::replace(&mut self.life, Life::Dead) {
+                    self.written.push(w.into_inner().commit()?);
+                }
+            }
+        }
+        if t >= back_at && matches!(self.life, Life::Dead) {
+            // Started again: the next recording of the series, from these bytes on.
+            let mut meta = self.meta.clone();
+            meta.start_unix_us = t_host_us;
+            meta.continues = self.written.last().and_then(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned());
+            let next = series_member(&self.first, self.written.len() + 1);
+            self.life = Life::Alive(Box::new(Writer::create_atomic(&next, &meta)?));
+        }
+        self.write(stream, t_host_us, data)
+    }
+
+    fn write(&mut self, stream: Stream, t_host_us: u64, data: &[u8]) -> Result<()> {
+        let Life::Alive(w) = &mut self.life else { return Ok(()) };
+        w.chunk(stream, t_host_us, data)?;
+        w.publish()
+    }
+
+    /// Close the recording in progress; returns every recording written, in order.
+    pub fn finish(mut self) -> Result<Vec<PathBuf>> {
+        if let Life::Alive(w) = self.life {
+            if w.chunks.iter().any(|&n| n > 0) {
+                self.written.push(w.into_inner().commit()?);
+            }
+        }
+        Ok(self.written)
+    }
+}
 
 /// A recording in progress; call [`QemuRecorder::finish`] after the run (and after dropping
-/// every clone of the config's tap) to flush it and get its chunk counts.
+/// every clone of the config's tap) to flush it and get the recordings written.
 pub struct QemuRecorder {
-    handle: JoinHandle<Result<[u64; 4]>>,
+    handle: JoinHandle<Result<Vec<PathBuf>>>,
 }
 
 impl QemuRecorder {
@@ -21,34 +110,35 @@ impl QemuRecorder {
     /// temporary name until the first bytes arrive: a run that fails before (QEMU missing, a bad
     /// ELF) leaves an old recording at `path` untouched.
     pub fn start(cfg: &mut QemuConfig, path: &Path) -> Result<Self> {
+        Self::start_with_host_outage(cfg, path, None)
+    }
+
+    /// As [`start`](Self::start), for a host process that is gone from head time `.0` to `.1`
+    /// (µs): see [`HostRecorder`].
+    pub fn start_with_host_outage(cfg: &mut QemuConfig, path: &Path, outage_head_us: Option<(u64, u64)>) -> Result<Self> {
         let mut meta = Meta::new(format!("qemu {}", cfg.elf.display()));
         meta.elf = Some(cfg.elf.display().to_string());
         meta.board_args = cfg.board_args.clone();
-        let mut w = Writer::create_atomic(path, &meta)?;
+        let mut w = HostRecorder::create(path, meta, outage_head_us)?;
         let (tx, rx) = mpsc::channel::<RawBytes>();
         cfg.raw_tap = Some(tx);
-        let handle = std::thread::spawn(move || -> Result<[u64; 4]> {
+        let handle = std::thread::spawn(move || -> Result<Vec<PathBuf>> {
             for raw in rx {
+                let now = super::now_unix_us();
                 match raw {
-                    RawBytes::Telemetry(b) => w.chunk_now(Stream::Uplink, &b)?,
-                    RawBytes::Defmt(b) => w.chunk_now(Stream::Defmt, &b)?,
-                    RawBytes::Downlink(b) => w.chunk_now(Stream::Downlink, &b)?,
-                }
-                if w.chunks.iter().any(|&n| n > 0) {
-                    w.publish()?;
+                    RawBytes::Telemetry(b) => w.chunk(Stream::Uplink, now, &b)?,
+                    RawBytes::Defmt(b) => w.chunk(Stream::Defmt, now, &b)?,
+                    RawBytes::Downlink(b) => w.chunk(Stream::Downlink, now, &b)?,
                 }
             }
-            let chunks = w.chunks;
-            if chunks.iter().any(|&n| n > 0) {
-                w.into_inner().commit()?;
-            }
-            Ok(chunks)
+            w.finish()
         });
         Ok(Self { handle })
     }
 
-    /// Wait for the writer (the run must be over and `cfg.raw_tap` dropped or taken).
-    pub fn finish(self) -> Result<[u64; 4]> {
+    /// Wait for the writer (the run must be over and `cfg.raw_tap` dropped or taken); returns
+    /// the recordings written.
+    pub fn finish(self) -> Result<Vec<PathBuf>> {
         self.handle.join().map_err(|_| anyhow!("the recording thread panicked"))?
     }
 }
