@@ -233,7 +233,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             Some(p) => run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?,
             None => Vec::new(),
         };
-        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc).with_recordings(&recordings)?
+        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
+            .with_map(run.map, &sc)
+            .with_recordings(&recordings)?
     } else {
         let elf = args.elf.as_ref().context("--elf is required without --native")?;
         if !elf.exists() {

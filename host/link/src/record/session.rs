@@ -147,10 +147,8 @@ impl Session {
         // The time between the recordings is a gap like any other.
         let between = a.gap_to(&b).filter(|(x, y)| y - x > crate::uplink::HEAD_GAP_US);
         self.link.head_gaps += b.head_gaps + u64::from(between.is_some());
-        self.link.longest_head_gap_us = [a.longest_head_gap_us, b.longest_head_gap_us, between]
-            .into_iter()
-            .flatten()
-            .max_by_key(|(x, y)| y - x);
+        self.link.longest_head_gap_us =
+            [a.longest_head_gap_us, b.longest_head_gap_us, between].into_iter().flatten().max_by_key(|(x, y)| y - x);
         self.trailing_bytes = next.trailing_bytes;
         self.damage.extend(next.damage);
     }

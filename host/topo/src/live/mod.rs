@@ -22,7 +22,12 @@
 //!   older than `min_revisit_s`, `D = P1 - P0` projected onto PSD with eigenvalues floored at
 //!   `min_drift_m2`, `m = x1 - x0`, gate statistic `m^T (D + V)^-1 m < gate_chi2` with
 //!   `V = recognition_sigma_m^2 I`. Then appearance: the nearest gated node in the learned metric
-//!   below the threshold is recognised. A node whose gate is wider than `max_gate_sigma_m`
+//!   below the threshold is recognised. The first frame that matches is seen a metre or two
+//!   before the place (the footprints overlap): the recognition is held while the next frames
+//!   match the same node better (at most `best_match_hold_s`) and the best one is sent, its place
+//!   `x0` being where the node's best-matching sample was taken (the firmware's estimate then;
+//!   a node's samples span two metres of travel), not the node's centre frame. The fix is
+//!   stamped with that frame's time and fused late by the firmware. A node whose gate is wider than `max_gate_sigma_m`
 //!   (1 sigma, largest axis of `D + V`) fails it: the scene has look-alike places a cell or two
 //!   apart, and a gate that wide would let them through. The nearest node overall (of those old enough) below the
 //!   threshold is counted as an appearance-only match, and as a gate refusal when its node failed
@@ -115,6 +120,10 @@ pub struct LiveConfig {
     pub max_gate_sigma_m: f64,
     /// At most one fix per node per this (s).
     pub refractory_s: f64,
+    /// A recognition is held while the next frames match the same node better (the vehicle
+    /// still approaching its place) and sent for the best of them, at most this long after the
+    /// first (s; 0 sends the first at once).
+    pub best_match_hold_s: f64,
     /// At most one fix (of any node) per this (s): longer than the round trip of a fix to the
     /// firmware and back into its telemetered covariance, so a fix still in flight is not
     /// counted again by the next one.
@@ -177,6 +186,7 @@ impl Default for LiveConfig {
             gate_chi2: subnav_base::chi2::chi2_2_99(),
             max_gate_sigma_m: 3.0,
             refractory_s: 8.0,
+            best_match_hold_s: 4.0,
             min_fix_interval_s: 2.0,
             restart_frames: 3,
             nav_reset_samples: 10,
@@ -220,6 +230,9 @@ pub struct MapFix {
     pub posterior_cov_ne_m2: [f64; 3],
     pub gate_d2: f64,
     pub appearance_dist: f64,
+    /// The place recognised: where the node's best-matching sample was taken (the firmware's
+    /// estimate then), the `x0` of the fix.
+    pub place_ne_m: [f64; 2],
 }
 
 impl MapFix {
@@ -309,6 +322,11 @@ pub enum FrameOutcome {
     Sampled {
         node: usize,
     },
+    /// Recognised; held while the next frames may match the node better (see
+    /// `LiveConfig::best_match_hold_s`).
+    Held {
+        node: usize,
+    },
     /// Trained, no recognition, no node due.
     NoMatch,
     Refused {
@@ -347,6 +365,10 @@ pub struct LiveNode {
     pub last_fix_t_us: Option<u64>,
     #[serde(skip)]
     pub samples: Vec<[f64; N_FEATURES]>,
+    /// Where each sample's frame was taken: the firmware's estimate at its time (N, E), m. A
+    /// recognition is of the best-matching sample's place, not the node's centre frame.
+    #[serde(skip)]
+    pub sample_places_ne_m: Vec<[f64; 2]>,
 }
 
 /// An accepted loop closure.
@@ -427,6 +449,21 @@ struct NavPoint {
     odo_m: f64,
 }
 
+/// A recognition held for a better frame: the best so far.
+#[derive(Debug, Clone, Copy)]
+struct Held {
+    node: usize,
+    /// The place of the node's sample this frame matched best.
+    place_ne_m: [f64; 2],
+    /// Squared appearance distance, the frame, its nav and its gate statistic.
+    app_d2: f64,
+    frame: CameraFrame,
+    nav: NavAt,
+    gate_d2: f64,
+    correct: Option<bool>,
+    first_t_us: u64,
+}
+
 /// The nav solution at a frame.
 #[derive(Debug, Clone, Copy)]
 struct NavAt {
@@ -496,6 +533,8 @@ pub struct LiveMapper {
     /// Nav samples in a row with time before the newest one: (time, how many).
     nav_back_run: Option<(u64, usize)>,
     last_fix_t_us: Option<u64>,
+    /// The recognition being held for a better frame of the same node.
+    held: Option<Held>,
     recent: VecDeque<(u64, [f64; N_FEATURES])>,
     /// Node being built: (id, creation time).
     collecting: Option<(usize, u64)>,
@@ -506,6 +545,8 @@ pub struct LiveMapper {
     /// Mapped node samples (`dim` each, contiguous) and the node index of each.
     mapped: Vec<f64>,
     owner: Vec<u32>,
+    /// The place of each mapped sample (`LiveNode::sample_places_ne_m`).
+    place_of: Vec<[f64; 2]>,
     next_train_at: usize,
     /// Travel odometer (m) and its last anchor position.
     odo_m: f64,
@@ -541,6 +582,7 @@ impl LiveMapper {
             restart_run: None,
             nav_back_run: None,
             last_fix_t_us: None,
+            held: None,
             recent: VecDeque::new(),
             collecting: None,
             last_event_odo_m: None,
@@ -549,6 +591,7 @@ impl LiveMapper {
             metric: None,
             mapped: Vec::new(),
             owner: Vec::new(),
+            place_of: Vec::new(),
             odo_m: 0.0,
             odo_anchor: None,
             gate_scratch: Vec::new(),
@@ -724,7 +767,11 @@ impl LiveMapper {
         }
         if let Some((id, t0)) = self.collecting {
             if t.saturating_sub(t0) <= max_age_us && id < self.nodes.len() {
-                self.add_sample(id, f);
+                let place = match &nav {
+                    NavLookup::At(n) => n.pos,
+                    _ => self.nodes[id].pos_ned_m,
+                };
+                self.add_sample(id, f, place);
                 if self.nodes[id].samples.len() >= self.cfg.samples_per_node {
                     self.collecting = None;
                     self.maybe_train();
@@ -796,10 +843,12 @@ impl LiveMapper {
             fixes: 0,
             last_fix_t_us: None,
             samples,
+            sample_places_ne_m: Vec::with_capacity(self.cfg.samples_per_node),
         });
-        let recent: Vec<[f64; N_FEATURES]> = self.recent.iter().map(|(_, f)| *f).collect();
-        for f in recent {
-            self.add_sample(id, f);
+        let recent: Vec<(u64, [f64; N_FEATURES])> = self.recent.iter().copied().collect();
+        for (tr, f) in recent {
+            let place = self.place_at(tr, nav.pos);
+            self.add_sample(id, f, place);
         }
         self.stats.nodes = self.nodes.len();
         if self.nodes[id].samples.len() < self.cfg.samples_per_node {
@@ -810,14 +859,24 @@ impl LiveMapper {
         id
     }
 
-    fn add_sample(&mut self, id: usize, f: [f64; N_FEATURES]) {
+    fn add_sample(&mut self, id: usize, f: [f64; N_FEATURES], place_ne_m: [f64; 2]) {
         let Some(node) = self.nodes.get_mut(id) else { return };
         node.samples.push(f);
+        node.sample_places_ne_m.push(place_ne_m);
         if let Some(m) = &self.metric {
             let start = self.mapped.len();
             self.mapped.resize(start + m.dim, 0.0);
             m.map_into(&f, &mut self.mapped[start..]);
             self.owner.push(id as u32);
+            self.place_of.push(place_ne_m);
+        }
+    }
+
+    /// The firmware's position estimate at `t_us` (`fallback` outside the nav window).
+    fn place_at(&self, t_us: u64, fallback: [f64; 2]) -> [f64; 2] {
+        match self.nav_at(t_us) {
+            NavLookup::At(n) => n.pos,
+            _ => fallback,
         }
     }
 
@@ -860,12 +919,14 @@ impl LiveMapper {
         let total: usize = self.nodes.iter().map(|n| n.samples.len()).sum();
         self.mapped = Vec::with_capacity(total * metric.dim);
         self.owner = Vec::with_capacity(total);
+        self.place_of = Vec::with_capacity(total);
         let mut buf = vec![0.0; metric.dim];
         for n in &self.nodes {
-            for s in &n.samples {
+            for (k, s) in n.samples.iter().enumerate() {
                 metric.map_into(s, &mut buf);
                 self.mapped.extend_from_slice(&buf);
                 self.owner.push(n.id as u32);
+                self.place_of.push(n.sample_places_ne_m.get(k).copied().unwrap_or(n.pos_ned_m));
             }
         }
         self.stats.trained = true;
@@ -914,6 +975,7 @@ impl LiveMapper {
         metric.map_into(f, &mut q[..dim]);
         let q = &q[..dim];
         let (mut best_all, mut best_gated) = ((f64::INFINITY, usize::MAX), (f64::INFINITY, usize::MAX));
+        let mut best_sample = usize::MAX;
         for (s, &owner) in self.owner.iter().enumerate() {
             let node = owner as usize;
             let g = self.gate_scratch.get(node).copied().unwrap_or(f64::INFINITY);
@@ -927,6 +989,7 @@ impl LiveMapper {
             }
             if g < cfg.gate_chi2 && d2 < best_gated.0 {
                 best_gated = (d2, node);
+                best_sample = s;
             }
         }
         self.stats.opportunities += u64::from(opportunity && truth.is_some());
@@ -949,6 +1012,10 @@ impl LiveMapper {
         }
         if best_gated.0.is_nan() || best_gated.0 >= thr2 {
             self.update_scores();
+            // The held recognition's run of matches has ended: send it.
+            if let Some(h) = self.held.take() {
+                return Recognition::Event(self.send(h));
+            }
             return refused.map_or(Recognition::None, |(n, d2)| Recognition::GateRefused(n, d2));
         }
         let (app_d2, node) = best_gated;
@@ -965,23 +1032,54 @@ impl LiveMapper {
             self.stats.fixes_refused_refractory += 1;
             return Recognition::Event(FrameOutcome::Refused { reason: Refusal::Refractory { node } });
         }
-        let interval_us = (cfg.min_fix_interval_s.max(0.0) * 1e6) as u64;
-        if self.last_fix_t_us.is_some_and(|lt| t < lt.saturating_add(interval_us)) {
-            self.stats.fixes_refused_interval += 1;
-            return Recognition::Event(FrameOutcome::Refused { reason: Refusal::FixInterval { node } });
-        }
         if !(nav.vel_sigma_mps <= cfg.max_fix_vel_sigma_mps) {
             self.stats.fixes_refused_velocity += 1;
             return Recognition::Event(FrameOutcome::Refused {
                 reason: Refusal::VelocityUnaided { node, vel_sigma_mps: nav.vel_sigma_mps },
             });
         }
-        let x0 = Vector2::new(n.pos_ned_m[0], n.pos_ned_m[1]);
+        // The first frame that matches is seen while the vehicle still approaches the node's
+        // place (its footprint overlaps the node's images from a metre or two away): hold it
+        // while the next frames match the same node better, and send the best.
+        let place_ne_m = self.place_of.get(best_sample).copied().unwrap_or(n.pos_ned_m);
+        let this = Held { node, place_ne_m, app_d2, frame: *frame, nav: *nav, gate_d2, correct, first_t_us: t };
+        let hold_us = (cfg.best_match_hold_s.max(0.0) * 1e6) as u64;
+        match self.held.take() {
+            Some(h) if h.node == node && app_d2 < h.app_d2 && t.saturating_sub(h.first_t_us) < hold_us => {
+                self.held = Some(Held { first_t_us: h.first_t_us, ..this });
+                Recognition::Event(FrameOutcome::Held { node })
+            }
+            // Worse than the best (the place is passed), another node, or held long enough.
+            Some(h) => Recognition::Event(self.send(h)),
+            None if hold_us == 0 => Recognition::Event(self.send(this)),
+            None => {
+                self.held = Some(this);
+                Recognition::Event(FrameOutcome::Held { node })
+            }
+        }
+    }
+
+    /// The fix of a (held) recognition, or why none is sent.
+    fn send(&mut self, h: Held) -> FrameOutcome {
+        let cfg = self.cfg;
+        let Held { node, place_ne_m, app_d2, frame, nav, gate_d2, correct, .. } = h;
+        let t = frame.t_us;
+        let truth = frame.truth_ned_m.filter(|p| finite(p));
+        let p1 = sym(nav.cov);
+        let x1 = Vector2::new(nav.pos[0], nav.pos[1]);
+        let v = Matrix2::identity() * cfg.recognition_sigma_m.powi(2);
+        let interval_us = (cfg.min_fix_interval_s.max(0.0) * 1e6) as u64;
+        if self.last_fix_t_us.is_some_and(|lt| t < lt.saturating_add(interval_us)) {
+            self.stats.fixes_refused_interval += 1;
+            return FrameOutcome::Refused { reason: Refusal::FixInterval { node } };
+        }
+        let Some(n) = self.nodes.get_mut(node) else { return FrameOutcome::Refused { reason: Refusal::Numeric { node } } };
+        let x0 = Vector2::new(place_ne_m[0], place_ne_m[1]);
         let math = match equivalent_fix(x0, &sym(n.cov_ne_m2), x1, &p1, &v, cfg.min_drift_m2) {
             Ok(m) => m,
             Err(FixMathError::NonFinite | FixMathError::NotPositiveDefinite | FixMathError::Degenerate) => {
                 self.stats.fixes_refused_numeric += 1;
-                return Recognition::Event(FrameOutcome::Refused { reason: Refusal::Numeric { node } });
+                return FrameOutcome::Refused { reason: Refusal::Numeric { node } };
             }
         };
         // Information: R's eigenvalues, and the generalised eigenvalues of P1 R^-1 (variance
@@ -996,7 +1094,7 @@ impl LiveMapper {
         let max_gain = gain.unwrap_or(0.0);
         if r_eig[0] > cfg.max_fix_var_m2 || max_gain.is_nan() || max_gain < cfg.min_info_gain {
             self.stats.fixes_refused_no_information += 1;
-            return Recognition::Event(FrameOutcome::Refused { reason: Refusal::NoInformation { node, min_var_m2: r_eig[0], max_gain } });
+            return FrameOutcome::Refused { reason: Refusal::NoInformation { node, min_var_m2: r_eig[0], max_gain } };
         }
         // Cap the weak direction (largest eigenvalue), keeping R^-1 (z - x1) along it.
         let (mut r, mut z) = (math.r, math.z);
@@ -1025,6 +1123,7 @@ impl LiveMapper {
             posterior_cov_ne_m2: tri(&math.sigma),
             gate_d2,
             appearance_dist: app_d2.sqrt(),
+            place_ne_m,
         };
         if self.closures.len() >= self.cfg.max_closures.max(2) {
             let half = self.closures.len() / 2;
@@ -1039,7 +1138,7 @@ impl LiveMapper {
             truth_ned_m: truth,
             correct,
         });
-        Recognition::Event(FrameOutcome::Fix(fix))
+        FrameOutcome::Fix(fix)
     }
 
     fn update_scores(&mut self) {
