@@ -13,7 +13,12 @@
 //! Heading re-acquisition: when the heading gate has rejected `RESET_YAW_FIXES` compass fixes in
 //! a row and their innovations agree with each other, the filter's heading is wrong, not the
 //! compass: the estimator resets the heading to the fixes' circular mean
-//! ([`NavFilter15::reset_heading`]). Depth is positive down (NED z).
+//! ([`NavFilter15::reset_heading`]). Position re-acquisition is the same for position fixes:
+//! `RESET_POSITION_FIXES` refused in a row whose innovations (the fix minus the estimate at its
+//! time of validity) agree within the fixes' own noise mean the position is lost, not the fixes
+//! wrong: the estimator moves it by their mean ([`NavFilter15::reset_position`]); a run that
+//! disagrees starts over from its last refusal (USBL multipath comes one fix at a time). Depth is
+//! positive down (NED z).
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use subnav_core::compass::{self, CompassInput, UnitModel};
@@ -34,6 +39,9 @@ const ALIGN_YAW_FIXES: u32 = 5;
 /// Consecutive gate-rejected, mutually consistent fixes that trigger a heading reset (3 s at
 /// 10 Hz: longer than any plausible run of outliers from a working compass).
 const RESET_YAW_FIXES: u32 = 30;
+/// Consecutive gate-refused, mutually consistent position fixes that trigger a position reset
+/// (25 s of USBL at one fix per 5 s; an outlier of a working USBL comes alone).
+const RESET_POSITION_FIXES: u32 = 5;
 /// Minimum mean resultant length of a consistent set of angles: 0.98 is a circular standard
 /// deviation of 11.5 deg (`sqrt(-2 ln R)`), twice the worst compass RMSE measured in the
 /// simulated dives (6.3 deg).
@@ -154,6 +162,49 @@ impl AngleRun {
     }
 }
 
+/// Innovations of a run of gate-refused position fixes (NED, m), with the fixes' variances.
+#[derive(Debug, Clone, Copy, Default)]
+struct PositionRun {
+    n: u32,
+    sum_m: [f32; 3],
+    sum_sq_m2: [f32; 3],
+    sum_var_m2: [f32; 3],
+}
+
+impl PositionRun {
+    fn push(&mut self, innovation_m: [f32; 3], var_m2: [f32; 3]) {
+        self.n += 1;
+        let axes = self.sum_m.iter_mut().zip(self.sum_sq_m2.iter_mut()).zip(self.sum_var_m2.iter_mut());
+        for (((s, sq), sv), (e, v)) in axes.zip(innovation_m.into_iter().zip(var_m2)) {
+            *s += e;
+            *sq += e * e;
+            *sv += v;
+        }
+    }
+
+    /// With at least `min_n` innovations: `Some((mean, variance))` per axis if they agree (on
+    /// every axis the scatter about their mean is within 3 sigma of the fixes' own noise); the
+    /// variance is the larger of the fixes' mean variance and the scatter. `None` otherwise.
+    fn consensus(&self, min_n: u32) -> Option<([f32; 3], [f32; 3])> {
+        if self.n < min_n || self.n == 0 {
+            return None;
+        }
+        let n = self.n as f32;
+        let (mut mean, mut var) = ([0.0f32; 3], [0.0f32; 3]);
+        let sums = self.sum_m.iter().zip(&self.sum_sq_m2).zip(&self.sum_var_m2);
+        for ((m, v), ((s, sq), sv)) in mean.iter_mut().zip(var.iter_mut()).zip(sums) {
+            *m = s / n;
+            let scatter = (sq / n - *m * *m).max(0.0);
+            let noise = sv / n;
+            if !(scatter <= 9.0 * noise) {
+                return None;
+            }
+            *v = noise.max(scatter);
+        }
+        Some((mean, var))
+    }
+}
+
 #[derive(Debug, Clone, Copy, Default)]
 struct Align {
     start_us: Option<u64>,
@@ -179,6 +230,10 @@ pub struct Estimator {
     rejected_run: AngleRun,
     /// Heading resets done (re-acquisitions after a run of consistent rejected fixes).
     pub heading_resets: u32,
+    /// Innovations of the current run of gate-refused position fixes.
+    refused_positions: PositionRun,
+    /// Position resets done (the same for position fixes).
+    pub position_resets: u32,
     /// Low-passed specific force for the compass tilt (body FRD).
     accel_lp: [f32; 3],
     accel_seen: bool,
@@ -229,6 +284,8 @@ impl Estimator {
             yaw_fix: None,
             rejected_run: AngleRun::default(),
             heading_resets: 0,
+            refused_positions: PositionRun::default(),
+            position_resets: 0,
             accel_lp: [0.0; 3],
             accel_seen: false,
             last_depth_m: None,
@@ -288,6 +345,8 @@ impl Estimator {
         self.yaw_fix = None;
         self.rejected_run = AngleRun::default();
         self.heading_resets = 0;
+        self.refused_positions = PositionRun::default();
+        self.position_resets = 0;
         self.accel_lp = [0.0; 3];
         self.accel_seen = false;
         self.last_depth_m = None;
@@ -582,11 +641,32 @@ impl Estimator {
         }
     }
 
+    /// A position fix (NED, m, covariance upper triangle) valid at `t_us`; position
+    /// re-acquisition (see the module doc).
     pub fn on_position_fix(&mut self, t_us: u64, pos_ned_m: [f32; 3], cov_ned_m2: [f32; 6]) -> Result<(), NavError> {
-        match self.nav.as_mut().filter(|_| self.running) {
-            Some(nav) => nav.update_position(t_us, pos_ned_m, cov_ned_m2).map(|_| ()),
-            None => Err(NavError::BadTime),
+        let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return Err(NavError::BadTime) };
+        let prior = nav.position_at(t_us);
+        let rep = nav.update_position(t_us, pos_ned_m, cov_ned_m2)?;
+        if rep.accepted {
+            self.refused_positions = PositionRun::default();
+            return Ok(());
         }
+        let Some(prior) = prior else { return Ok(()) };
+        let innovation = [pos_ned_m[0] - prior.x, pos_ned_m[1] - prior.y, pos_ned_m[2] - prior.z];
+        self.refused_positions.push(innovation, [cov_ned_m2[0], cov_ned_m2[3], cov_ned_m2[5]]);
+        if let Some((mean, var)) = self.refused_positions.consensus(RESET_POSITION_FIXES) {
+            let now = nav.nominal().pos_ned_m;
+            if nav.reset_position([now.x + mean[0], now.y + mean[1], now.z + mean[2]], var).is_ok() {
+                self.position_resets = self.position_resets.wrapping_add(1);
+            }
+            self.refused_positions = PositionRun::default();
+        } else if self.refused_positions.n >= RESET_POSITION_FIXES {
+            // Inconsistent refusals (outliers, not a lost position): start over from this one
+            // (it may be the first of a lost position's run).
+            self.refused_positions = PositionRun::default();
+            self.refused_positions.push(innovation, [cov_ned_m2[0], cov_ned_m2[3], cov_ned_m2[5]]);
+        }
+        Ok(())
     }
 
     /// A DVL report. Only valid bottom-track velocities reach the filter, at their time of
@@ -810,6 +890,58 @@ mod tests {
         assert!((yaw_deg(&e) - 160.0).abs() < 1.0, "after the reset: {}", yaw_deg(&e));
         let s = e.solution(0);
         assert!(s.att_nb_wxyz.iter().chain(s.pos_ned_m.iter()).all(|v| v.is_finite()));
+    }
+
+    /// The head at rest believes it is at the origin while the USBL says it is 60 m away: the
+    /// gate refuses those fixes; after `RESET_POSITION_FIXES` consistent ones the position is
+    /// reset there and the next fix is accepted. Single outliers among good fixes, and a run of
+    /// refusals that disagree with each other, reset nothing.
+    #[test]
+    fn a_lost_position_is_reset_after_a_run_of_consistent_refused_fixes() {
+        let cov = [4.0, 0.0, 0.0, 4.0, 0.0, 1.0];
+        let pos = |e: &Estimator| e.solution(0).pos_ned_m;
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 20.0, |_| Some(deg(40.0)));
+        let start = pos(&e);
+        let t0 = 20_000_000u64;
+        let fix = |e: &mut Estimator, k: u64, dn: f32, de: f32| {
+            let t = t0 + k * 1_000_000;
+            run(e, (t - 1_000_000) as f32 * 1e-6, t as f32 * 1e-6, |_| Some(deg(40.0)));
+            // Half a second late, as a USBL fix arrives.
+            e.on_position_fix(t - 500_000, [start[0] + dn, start[1] + de, start[2]], cov).unwrap();
+        };
+        // Good fixes with an outlier every fourth; then five refusals that disagree.
+        for k in 1..=12 {
+            let off = if k % 4 == 0 { 40.0 } else { 0.3 };
+            fix(&mut e, k, off, -0.2);
+        }
+        for (k, dn) in (13..=17).zip([50.0, -50.0, 50.0, -50.0, 50.0]) {
+            fix(&mut e, k, dn, 0.0);
+        }
+        assert_eq!(e.position_resets, 0);
+        assert!((pos(&e)[0] - start[0]).abs() < 1.0, "{:?} vs {start:?}", pos(&e));
+        // Lost: the fixes agree that the head is 60 m north, 20 m west (scatter about 1 m). The
+        // run that ends the disagreeing one holds two of them: the reset comes at the 5th to
+        // 8th lost fix.
+        let (mut reset_at, mut last_k) = (None, 17);
+        for k in 18..=26 {
+            last_k = k;
+            fix(&mut e, k, 60.0 + (k % 3) as f32 - 1.0, -20.0 + 0.3 * (k % 2) as f32);
+            if e.position_resets > 0 && reset_at.is_none() {
+                reset_at = Some(k - 17);
+                break;
+            }
+        }
+        assert!(reset_at.is_some_and(|n| (5..=8).contains(&n)), "reset at lost fix {reset_at:?}");
+        assert_eq!(e.position_resets, 1);
+        let p = pos(&e);
+        assert!((p[0] - start[0] - 60.0).abs() < 1.5 && (p[1] - start[1] + 20.0).abs() < 1.5, "after the reset: {p:?}");
+        let sigma = e.solution(0).sigma_pos_m;
+        assert!(sigma[0] > 1.0 && sigma[0] < 3.0, "the fixes' own sigma: {sigma:?}");
+        // The next fix there is accepted (the run does not grow).
+        fix(&mut e, last_k + 1, 60.2, -19.8);
+        assert_eq!(e.refused_positions.n, 0);
+        assert!(e.solution(0).pos_ned_m.iter().all(|v| v.is_finite()));
     }
 
     /// The compass's scatter grows tenfold (0.3 -> 3 deg, white) after 60 s: the adaptive heading

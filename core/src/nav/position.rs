@@ -3,7 +3,7 @@
 //!
 //! `z = p + dp`, NED metres; the fix brings its own covariance (upper triangle xx, xy, xz, yy,
 //! yz, zz), so R adaptation is off for it by default. The covariance is checked (finite, PD) and
-//! refused otherwise.
+//! refused otherwise. A position reset (re-acquisition of a lost position) is here too.
 
 use nalgebra::{Matrix3, SVector, Vector3};
 
@@ -11,6 +11,7 @@ use crate::ukf::pd;
 use crate::ukf::{Euclidean, UpdateReport};
 
 use super::filter::{KIND_POSITION, NavError, NavFilter, settle};
+use super::history::CURRENT_WITHIN_US;
 use super::state::{NominalState, POS, seg};
 
 /// Predicted position of an error sigma point.
@@ -51,5 +52,51 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         });
         settle(&mut self.noise_pos, noise, &res);
         self.end_update(KIND_POSITION, t_us, res, delayed)
+    }
+
+    /// The nominal position at `t_us`, now or in the history (NED, m); `None` outside them.
+    /// Changes nothing (a time outside the history is not counted as a refused measurement).
+    pub fn position_at(&self, t_us: u64) -> Option<Vector3<f32>> {
+        if t_us > self.t_us.saturating_add(self.cfg.max_future_us) {
+            return None;
+        }
+        if t_us.saturating_add(CURRENT_WITHIN_US) >= self.t_us {
+            return Some(self.nom.pos_ned_m);
+        }
+        self.hist.epoch(t_us, self.t_us, &self.nom, self.cfg.gravity_mps2, self.cfg.markov_tau_s).map(|e| e.nom.pos_ned_m)
+    }
+
+    /// Position reset (re-acquisition): move the nominal position to `pos_ned_m` and make its
+    /// error independent of every other state with variances `var_ned_m2` (N, E, D); the
+    /// position noise statistics restart from the configuration.
+    ///
+    /// For the estimator's use when the gate has refused a run of mutually consistent position
+    /// fixes (a lost position, e.g. after a long DVL outage with false map fixes), as for the
+    /// heading ([`NavFilter::reset_heading`]). Attitude and velocity are left alone.
+    pub fn reset_position(&mut self, pos_ned_m: [f32; 3], var_ned_m2: [f32; 3]) -> Result<(), NavError> {
+        if !pos_ned_m.iter().all(|v| v.is_finite()) || !var_ned_m2.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        self.begin_update(&[])?;
+        let mut p = *self.ukf.p();
+        for (k, var) in var_ned_m2.iter().enumerate() {
+            for i in 0..N {
+                for idx in [(POS + k, i), (i, POS + k)] {
+                    if let Some(v) = p.get_mut(idx) {
+                        *v = 0.0;
+                    }
+                }
+            }
+            if let Some(v) = p.get_mut((POS + k, POS + k)) {
+                *v = *var;
+            }
+        }
+        self.ukf.set_p(p)?;
+        self.nom.pos_ned_m = Vector3::from(pos_ned_m);
+        // The nominal position jumped: the recorded past is no longer the same trajectory.
+        self.hist.restart(self.t_us, &self.nom);
+        self.noise_pos = self.cfg.position.noise();
+        self.noise_pos.k = self.cfg.ukf.adapt.k0;
+        Ok(())
     }
 }

@@ -255,6 +255,47 @@ fn heading_reset_turns_attitude_and_velocity_and_decorrelates_the_yaw() {
 }
 
 #[test]
+fn position_reset_moves_the_position_and_decorrelates_it() {
+    let init = NavInit { vel_ned_mps: Vector3::new(1.0, 0.0, 0.0), ..level_init() };
+    let mut nav = NavFilter15::new(NavConfig::default(), init).unwrap();
+    let cov = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0];
+    for k in 0..300u64 {
+        nav.propagate(&imu(k * 10_000)).unwrap();
+        if k % 50 == 0 {
+            let _ = nav.update_heading(k * 10_000, 0.0, Some(0.01));
+            let p = nav.nominal().pos_ned_m;
+            let _ = nav.update_position(k * 10_000, [p.x, p.y, p.z], cov);
+        }
+    }
+    // The position in the past is the past's: 1 s ago, about 1 m behind (1 m/s north).
+    let (now, t) = (nav.nominal().pos_ned_m, nav.t_us());
+    let past = nav.position_at(t - 1_000_000).unwrap();
+    assert!((now.x - past.x - 1.0).abs() < 0.05, "{now:?} vs {past:?}");
+    assert_eq!(nav.position_at(t), Some(now));
+    assert_eq!(nav.position_at(t + 10_000_000), None);
+    // A fix 60 m away is refused by the gate; after the reset there it is accepted.
+    let far = [now.x + 60.0, now.y - 20.0, now.z];
+    assert!(!nav.update_position(t, far, cov).unwrap().accepted);
+    let vel_before = nav.nominal().vel_ned_mps;
+    nav.reset_position(far, [4.0, 4.0, 1.0]).unwrap();
+    assert_eq!(nav.nominal().pos_ned_m, Vector3::from(far));
+    assert_eq!(nav.nominal().vel_ned_mps, vel_before, "the velocity is left alone");
+    let p = nav.covariance();
+    assert!(is_pd(p));
+    for (k, var) in [4.0f32, 4.0, 1.0].iter().enumerate() {
+        let i = super::state::POS + k;
+        assert_eq!(p[(i, i)], *var);
+        assert!((0..15).filter(|&j| j != i).all(|j| p[(i, j)] == 0.0 && p[(j, i)] == 0.0));
+    }
+    assert!(nav.update_position(t, [far[0] + 1.0, far[1], far[2]], cov).unwrap().accepted);
+    // Non-finite input and non-positive variances are refused, the state untouched.
+    let before = nav.solution();
+    assert_eq!(nav.reset_position([f32::NAN, 0.0, 0.0], [1.0; 3]), Err(NavError::NonFinite));
+    assert_eq!(nav.reset_position([0.0; 3], [1.0, 0.0, 1.0]), Err(NavError::NonFinite));
+    assert_eq!(nav.solution(), before);
+}
+
+#[test]
 fn reinit_in_place_equals_a_new_filter() {
     let mut a = NavFilter15::new(NavConfig::default().adaptive(), level_init()).unwrap();
     for k in 0..300u64 {
