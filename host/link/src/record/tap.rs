@@ -142,3 +142,56 @@ impl QemuRecorder {
         self.handle.join().map_err(|_| anyhow!("the recording thread panicked"))?
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use subnav_wire::{self as wire, Board, CalibrationInUse, NavMode, NavSolution, ResetCause, Uplink, boot_message};
+
+    /// A host killed at 3 s and back at 6 s of head time, its bytes arriving in pieces that
+    /// cut frames: the first recording ends before 3 s, the second starts at 6 s mid-frame,
+    /// joins the running head and names the first.
+    #[test]
+    fn a_restarted_host_writes_the_next_recording_from_its_restart() {
+        let mut bytes = vec![];
+        let mut buf = [0u8; wire::MAX_UPLINK_FRAME];
+        let boot = boot_message(Board::QemuMps2An386, [0, 1, 0], 0, CalibrationInUse::NO_STORE, ResetCause::PowerOn);
+        bytes.extend_from_slice(wire::encode(&Uplink::Boot(boot), &mut buf).unwrap());
+        for k in 0..100u64 {
+            let nav = NavSolution {
+                t_us: k * 100_000,
+                mode: NavMode::Aided,
+                pos_ned_m: [0.0; 3],
+                vel_ned_mps: [0.0; 3],
+                att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
+                sigma_pos_m: [1.0; 3],
+                sigma_vel_mps: [0.1; 3],
+                sigma_att_rad: [0.01; 3],
+                cov_ne_m2: 0.0,
+            };
+            bytes.extend_from_slice(wire::encode(&Uplink::Nav(nav), &mut buf).unwrap());
+        }
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join("dive.snrec");
+        let mut w = HostRecorder::create(&path, Meta::new("test"), Some((3_000_000, 6_000_000))).unwrap();
+        for (i, piece) in bytes.chunks(37).enumerate() {
+            w.chunk(Stream::Uplink, 1_000 + i as u64, piece).unwrap();
+            w.chunk(Stream::Defmt, 1_000 + i as u64, b"log").unwrap();
+        }
+        let written = w.finish().unwrap();
+        assert_eq!(written, [path.clone(), d.path().join("dive.2.snrec")]);
+        let (a, b) = (super::super::uplink_stats(&written[0]).unwrap(), super::super::uplink_stats(&written[1]).unwrap());
+        assert!(!a.joined_running_head && a.last_head_us.is_some_and(|t| t < 3_000_000), "{a:?}");
+        assert!(b.joined_running_head && b.first_head_us.is_some_and(|t| (6_000_000..6_200_000).contains(&t)), "{b:?}");
+        assert_eq!(b.frames_bad, 1, "the restarted host starts mid-frame");
+        let (x, y) = a.gap_to(&b).unwrap();
+        assert!((y - x) > 3_000_000 && (y - x) < 3_300_000, "gap {x}..{y}");
+        let second = super::super::read_file(&written[1]).unwrap();
+        assert_eq!(second.meta.continues.as_deref(), Some("dive.snrec"));
+        // The dead host recorded no log either: about 3 s of the 10 s of logs are in neither.
+        let first = super::super::read_file(&written[0]).unwrap();
+        let logs = first.stream_bytes(Stream::Defmt).len() + second.stream_bytes(Stream::Defmt).len();
+        let all = bytes.len().div_ceil(37) * 3;
+        assert!(logs < all * 8 / 10 && logs > all * 6 / 10, "{logs} of {all} log bytes recorded");
+    }
+}
