@@ -11,7 +11,7 @@ use subnav_link::LinkEvent;
 use subnav_link::defmt_log::DefmtTable;
 use subnav_link::export::{TimeBase, mcap::write, schema};
 use subnav_link::qemu::{QemuConfig, QemuEvent, run};
-use subnav_link::record::{read_file, session::Session, tap::QemuRecorder};
+use subnav_link::record::{Stream, read_file, session::Session, tap::QemuRecorder};
 use subnav_wire::Uplink;
 
 #[test]
@@ -32,13 +32,15 @@ fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {
     })
     .unwrap();
     cfg.raw_tap = None;
-    let chunks = recorder.finish().unwrap();
+    let written = recorder.finish().unwrap();
     assert!(outcome.success(), "{outcome:?}");
-    assert!(chunks[0] > 0 && chunks[1] > 0, "uplink and defmt chunks recorded: {chunks:?}");
+    assert_eq!(written, [rec.clone()], "one recording: the host lived through the run");
 
     // Lossless: the recording decodes to exactly what the live run saw, logs included.
     let loaded = read_file(&rec).unwrap();
     assert!(loaded.damage.is_empty());
+    let (up, defmt) = (loaded.stream(Stream::Uplink).count(), loaded.stream(Stream::Defmt).count());
+    assert!(up > 0 && defmt > 0, "uplink and defmt chunks recorded: {up}, {defmt}");
     let table = DefmtTable::from_elf_path(&elf).unwrap();
     let s = Session::decode(&loaded, Some(&table));
     let got: Vec<_> = s.messages.iter().map(|m| m.item).collect();
