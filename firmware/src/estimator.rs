@@ -714,6 +714,8 @@ impl Estimator {
             Some(nav) => {
                 let mut h = nav.health();
                 h.nonfinite_rejects = h.nonfinite_rejects.saturating_add(self.input_rejects);
+                h.heading_resets = self.heading_resets;
+                h.position_resets = self.position_resets;
                 h
             }
             None => FilterHealth {
@@ -728,6 +730,8 @@ impl Estimator {
                 nonfinite_rejects: self.input_rejects,
                 late_fused: 0,
                 late_refused: 0,
+                heading_resets: self.heading_resets,
+                position_resets: self.position_resets,
                 cpu_load_permille: 0,
             },
         }
@@ -887,6 +891,7 @@ mod tests {
         assert!((yaw_deg(&e) - 40.0).abs() < 2.0, "{}", yaw_deg(&e));
         run(&mut e, 22.9, 30.0, |_| Some(deg(160.0)));
         assert_eq!(e.heading_resets, 1);
+        assert_eq!(e.health(0).heading_resets, 1, "reported in Health");
         assert!((yaw_deg(&e) - 160.0).abs() < 1.0, "after the reset: {}", yaw_deg(&e));
         let s = e.solution(0);
         assert!(s.att_nb_wxyz.iter().chain(s.pos_ned_m.iter()).all(|v| v.is_finite()));
@@ -934,6 +939,7 @@ mod tests {
         }
         assert!(reset_at.is_some_and(|n| (5..=8).contains(&n)), "reset at lost fix {reset_at:?}");
         assert_eq!(e.position_resets, 1);
+        assert_eq!((e.health(0).position_resets, e.health(0).heading_resets), (1, 0), "reported in Health");
         let p = pos(&e);
         assert!((p[0] - start[0] - 60.0).abs() < 1.5 && (p[1] - start[1] + 20.0).abs() < 1.5, "after the reset: {p:?}");
         let sigma = e.solution(0).sigma_pos_m;

@@ -220,6 +220,10 @@ pub struct FilterHealth {
     /// Measurements refused for their time since boot: older than the filter's history, or
     /// stamped in the future beyond the accepted bound.
     pub late_refused: u32,
+    /// Re-acquisitions since boot: heading and position resets after a run of mutually
+    /// consistent fixes the gate refused (the estimate was wrong, not the fixes).
+    pub heading_resets: u32,
+    pub position_resets: u32,
     /// CPU load over the last reporting period, per mille.
     pub cpu_load_permille: u16,
 }

@@ -17,6 +17,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// - `nonfinite_rejects`: inputs rejected before the UKF plus those the UKF rejected.
     /// - `late_fused` / `late_refused`: the delayed-fusion counters (`delayed_updates`,
     ///   `delay_rejects`).
+    /// - `heading_resets` / `position_resets` are left 0: the estimator that decides them fills
+    ///   them.
     /// - `cpu_load_permille` is left 0: the firmware fills it.
     pub fn health(&self) -> FilterHealth {
         let h = self.ukf.health();
@@ -35,6 +37,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             nonfinite_rejects: h.nonfinite_rejects.saturating_add(self.imu_rejects),
             late_fused: self.delayed_updates(),
             late_refused: self.delay_rejects(),
+            heading_resets: 0,
+            position_resets: 0,
             cpu_load_permille: 0,
         }
     }

@@ -43,6 +43,8 @@ fn messages() -> Vec<Uplink> {
                 nonfinite_rejects: 0,
                 late_fused: 0,
                 late_refused: 0,
+                heading_resets: 0,
+                position_resets: 0,
                 cpu_load_permille: 100,
             }));
             v.push(Uplink::Raw(RawSample::Imu(ImuSample { t_us, gyro_radps: [0.0; 3], accel_mps2: [0.0, 0.0, -9.8], temp_c: 20.0 })));

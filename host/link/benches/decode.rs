@@ -39,6 +39,8 @@ fn message(i: usize) -> Uplink {
             nonfinite_rejects: 0,
             late_fused: 0,
             late_refused: 0,
+            heading_resets: 0,
+            position_resets: 0,
             cpu_load_permille: 250,
         }),
         2 | 3 | 4 => {

@@ -69,7 +69,7 @@ pub fn text(m: &Uplink) -> String {
             c.no_fix_reason
         ),
         Uplink::Health(h) => format!(
-            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} cov_unrepairable={} gate_rejects={} nonfinite={} late_fused={} late_refused={}",
+            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} cov_unrepairable={} gate_rejects={} nonfinite={} late_fused={} late_refused={} resets heading={} position={}",
             secs(h.t_us),
             h.cpu_load_permille as f32 / 10.0,
             h.lambda,
@@ -79,7 +79,9 @@ pub fn text(m: &Uplink) -> String {
             h.gate_rejects,
             h.nonfinite_rejects,
             h.late_fused,
-            h.late_refused
+            h.late_refused,
+            h.heading_resets,
+            h.position_resets
         ),
         Uplink::Fault(f) => format!("FAULT   t={} {}: {} count={}", secs(f.t_us), f.source, f.kind, f.count),
         Uplink::Record(r) => match &r.stored {

@@ -108,6 +108,8 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("nonfinite_rejects", int()),
                 ("late_fused", int()),
                 ("late_refused", int()),
+                ("heading_resets", int()),
+                ("position_resets", int()),
                 ("cpu_load_permille", int()),
             ],
         ),
