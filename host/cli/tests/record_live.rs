@@ -146,4 +146,17 @@ fn a_restarted_recorder_starts_the_next_recording_and_reports_the_gap() {
     assert!(o.status.success() && e.contains("coverage: joined a running head at head time 50.0 s"), "{e}");
     assert!(e.contains("series: continues") && e.contains("30.0 s of telemetry are in neither"), "{e}");
     assert_eq!(l.meta.continues.as_deref(), Some("dive.snrec"));
+    // `report` on the first recording takes in the series, and says what is in neither.
+    let o = Command::new(env!("CARGO_BIN_EXE_subnav"))
+        .args(["report", "recording"])
+        .arg(&out)
+        .arg("-o")
+        .arg(dir.path().join("report"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains("continues") && e.contains("included: 30.0 s of head time (20.0-50.0 s) are in neither"), "{e}");
+    let md = std::fs::read_to_string(dir.path().join("report").join("report.md")).unwrap();
+    assert!(md.contains("301 navigation solutions"), "both recordings' solutions: {md}");
 }

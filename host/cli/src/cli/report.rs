@@ -82,9 +82,28 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             (p, page)
         }
     };
-    let (session, note) = super::export::load_session(&recording, args.elf.as_deref())?;
+    let (mut session, note) = super::export::load_session(&recording, args.elf.as_deref())?;
     if let Some(n) = &note {
         eprintln!("note: {n}");
+    }
+    if let Some(before) = &session.meta.continues {
+        eprintln!("note: this recording continues {before} (a restarted host); report on the first of the series for the whole dive");
+    }
+    // The recordings of a host restarted mid-dive: each names the one it continues.
+    for k in 2.. {
+        let next = subnav_link::record::series_member(&recording, k);
+        let prev = subnav_link::record::series_member(&recording, k - 1);
+        let Ok(loaded) = subnav_link::record::read_file(&next) else { break };
+        let prev_name = prev.file_name().map(|n| n.to_string_lossy().into_owned());
+        if loaded.meta.continues.is_none() || loaded.meta.continues != prev_name {
+            break;
+        }
+        let (next_session, _) = super::export::load_session(&next, args.elf.as_deref())?;
+        let gap = session.link.gap_to(&next_session.link).map_or(String::new(), |(a, b)| {
+            format!(": {:.1} s of head time ({:.1}-{:.1} s) are in neither", (b - a) as f64 * 1e-6, a as f64 * 1e-6, b as f64 * 1e-6)
+        });
+        eprintln!("note: {} continues {} (a restarted host), included{gap}", next.display(), prev.display());
+        session.append(next_session);
     }
     let truth = match &args.truth {
         Some(p) => {
