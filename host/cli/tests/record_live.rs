@@ -41,6 +41,24 @@ fn records_a_tcp_source_losslessly() {
         };
         bytes.extend_from_slice(encode(&Uplink::Nav(nav), &mut buf).unwrap());
     }
+    // The head re-acquired its position once.
+    let health = FilterHealth {
+        t_us: 19_950_000,
+        nis: [1.0; 4],
+        lambda: 1.0,
+        q_diag: [0.0; 5],
+        r_diag: [0.0; 4],
+        pd_repairs: 0,
+        cov_unrepairable: 0,
+        gate_rejects: 5,
+        nonfinite_rejects: 0,
+        late_fused: 0,
+        late_refused: 0,
+        heading_resets: 0,
+        position_resets: 1,
+        cpu_load_permille: 100,
+    };
+    bytes.extend_from_slice(encode(&Uplink::Health(health), &mut buf).unwrap());
     bytes.extend_from_slice(&[0x05, 0x01, 0x02, 0x03, 0x04, 0x00]);
     let sent = bytes.clone();
     let server = std::thread::spawn(move || {
@@ -57,7 +75,8 @@ fn records_a_tcp_source_losslessly() {
     server.join().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["status"]["link"]["frames_ok"], 201);
+    assert_eq!(v["status"]["link"]["frames_ok"], 202);
+    assert_eq!(v["status"]["resets"], serde_json::json!([0, 1]), "the position re-acquisition is in the summary");
     assert_eq!(v["status"]["link"]["frames_bad"], 1);
     assert_eq!(v["status"]["latest_fix"][1], serde_json::json!([199.0, 0.0, 5.0]));
     let l = read_file(&out).unwrap();

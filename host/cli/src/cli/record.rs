@@ -83,6 +83,8 @@ pub struct LiveStatus {
     pub dropped_by_firmware: u64,
     pub defmt_bytes: u64,
     pub latest_fix: Option<(u64, [f32; 3], String)>,
+    /// The head's re-acquisitions so far (from its latest `Health`): heading, position.
+    pub resets: (u32, u32),
 }
 
 impl LiveStatus {
@@ -93,6 +95,7 @@ impl LiveStatus {
                     self.latest_fix = Some((n.t_us, n.pos_ned_m, format!("{:?}", n.mode)))
                 }
                 Uplink::Fault(f) if f.kind == FaultKind::TelemetryDropped => self.dropped_by_firmware = u64::from(f.count),
+                Uplink::Health(h) => self.resets = (h.heading_resets, h.position_resets),
                 _ => {}
             }
         }
@@ -104,8 +107,12 @@ impl LiveStatus {
             Some((t, p, mode)) => format!("fix t={:.1}s N {:.1} E {:.1} D {:.1} ({mode})", *t as f64 * 1e-6, p[0], p[1], p[2]),
             None => "no fix yet".into(),
         };
+        let resets = match self.resets {
+            (0, 0) => String::new(),
+            (h, p) => format!(", RE-ACQUIRED heading x{h} position x{p}"),
+        };
         format!(
-            "{:.0} B/s, {} frames, {} corrupt, {} dropped by firmware, {}",
+            "{:.0} B/s, {} frames, {} corrupt, {} dropped by firmware, {}{resets}",
             rate, self.link.frames_ok, self.link.frames_bad, self.dropped_by_firmware, fix
         )
     }
