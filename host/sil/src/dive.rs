@@ -64,6 +64,9 @@ pub struct DiveResult {
     /// Each fault class the scenario injects: whether the head (or the map) reported it, and how
     /// long the estimate took to be consistent again after it (see [`fault_classes`]).
     pub fault_classes: Vec<FaultClassReport>,
+    /// The head's re-acquisitions (its latest `Health`): heading and position resets.
+    pub heading_resets: u32,
+    pub position_resets: u32,
     /// The recordings the host wrote (more than one when it was restarted mid-dive).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub recordings: Vec<RecordingSpan>,
@@ -370,6 +373,8 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         map: None,
         longest_nav_gap_s: 0.0,
         fault_classes: Vec::new(),
+        heading_resets: 0,
+        position_resets: 0,
         recordings: Vec::new(),
         consistency: Vec::new(),
     };
@@ -470,6 +475,9 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         r.heading_within_3_sigma = h_inside as f64 / n_conv as f64;
     }
     r.fault_classes = fault_classes(sc, msgs, r.longest_nav_gap_s);
+    if let Some(h) = msgs.iter().rev().find_map(|m| if let Uplink::Health(h) = m { Some(h) } else { None }) {
+        (r.heading_resets, r.position_resets) = (h.heading_resets, h.position_resets);
+    }
     r.consistency = consistency(sc, msgs);
     r
 }

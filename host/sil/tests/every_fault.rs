@@ -86,6 +86,8 @@ fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     assert!(host.evidence.contains("dive.2.snrec joined the running head"), "{}", host.evidence);
     let meta = subnav_link::record::read_file(&second.path).unwrap().meta;
     assert_eq!(meta.continues.as_deref(), Some("dive.snrec"));
+    // No fault here leaves the head lost: nothing is re-acquired.
+    assert_eq!((r.heading_resets, r.position_resets), (0, 0));
     assert!(r.within_3_sigma >= 0.95, "position within 3 sigma {}", r.within_3_sigma);
     assert!(r.heading_within_3_sigma >= 0.95, "heading within 3 sigma {}", r.heading_within_3_sigma);
 }

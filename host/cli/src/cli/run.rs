@@ -337,6 +337,9 @@ fn print_summary(r: &DiveResult) {
     for (source, kind, count) in &r.faults {
         println!("fault                 {source} {kind} x{count}");
     }
+    if r.heading_resets + r.position_resets > 0 {
+        println!("re-acquisitions       heading x{}, position x{}", r.heading_resets, r.position_resets);
+    }
     for rec in &r.recordings {
         let how = match (rec.joined_running_head, rec.gap_before_s) {
             (true, Some(g)) => format!(", joined the running head {g:.1} s after the recording before ends"),
