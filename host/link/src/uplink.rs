@@ -211,7 +211,7 @@ mod tests {
             subnav_wire::ResetCause::PowerOn,
         ));
         // The first host: boot, 10 Hz navigation to 20 s, one 3-s gap inside.
-        let mut first = vec![boot.clone()];
+        let mut first = vec![boot];
         first.extend((0..=200).filter(|k| !(50..80).contains(k)).map(|k| nav(k * 100_000)));
         let a = stats_of(&first, 0);
         assert!(!a.joined_running_head);
@@ -235,7 +235,7 @@ mod tests {
         assert_eq!(a.gap_to(&stats_of(&first, 0)), None);
 
         // A reboot's clock going back is not a gap, and a late stamp does not move time back.
-        let rebooted = [nav(30_000_000), boot.clone(), nav(100_000), nav(50_000), nav(200_000)];
+        let rebooted = [nav(30_000_000), boot, nav(100_000), nav(50_000), nav(200_000)];
         let c = stats_of(&rebooted, 0);
         assert!(c.joined_running_head);
         assert_eq!((c.head_gaps, c.last_head_us), (0, Some(200_000)));

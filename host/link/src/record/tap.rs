@@ -63,13 +63,12 @@ impl HostRecorder {
         }
         let t = self.latest_head_us;
         let Some((killed_at, back_at)) = self.outage_head_us else { return self.write(stream, t_host_us, data) };
-        if t >= killed_at {
-            // Killed at `killed_at`: what was written is on disk (each chunk is).
-            if let (Life::Alive(_), true) = (&self.life, self.written.is_empty()) {
-                if let Life::Alive(w) = std::mem::replace(&mut self.life, Life::Dead) {
-                    self.written.push(w.into_inner().commit()?);
-                }
-            }
+        // Killed at `killed_at` (the first life only): what was written is on disk (each chunk is).
+        if t >= killed_at
+            && self.written.is_empty()
+            && let Life::Alive(w) = std::mem::replace(&mut self.life, Life::Dead)
+        {
+            self.written.push(w.into_inner().commit()?);
         }
         if t >= back_at && matches!(self.life, Life::Dead) {
             // Started again: the next recording of the series, from these bytes on.
@@ -83,17 +82,19 @@ impl HostRecorder {
     }
 
     fn write(&mut self, stream: Stream, t_host_us: u64, data: &[u8]) -> Result<()> {
-        let Life::Alive(w) = &mut self.life else { return Ok(()) };
+        // Nothing to write leaves an old file at the path alone (the recording is published
+        // under its name with its first bytes).
+        let (Life::Alive(w), false) = (&mut self.life, data.is_empty()) else { return Ok(()) };
         w.chunk(stream, t_host_us, data)?;
         w.publish()
     }
 
     /// Close the recording in progress; returns every recording written, in order.
     pub fn finish(mut self) -> Result<Vec<PathBuf>> {
-        if let Life::Alive(w) = self.life {
-            if w.chunks.iter().any(|&n| n > 0) {
-                self.written.push(w.into_inner().commit()?);
-            }
+        if let Life::Alive(w) = self.life
+            && w.chunks.iter().any(|&n| n > 0)
+        {
+            self.written.push(w.into_inner().commit()?);
         }
         Ok(self.written)
     }
