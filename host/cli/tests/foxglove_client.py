@@ -53,6 +53,7 @@ def main():
     validated = {}
     invalid = []
     errors = []
+    resubscribed = []  # channels refused as unknown right after their advertisement, subscribed again
     server = None
     next_sub = 1
     first_advert = None
@@ -93,7 +94,22 @@ def main():
                     first_advert = first_advert or time.time()
                     subscribe(op["channels"])
                 elif op["op"] == "status" and op.get("level", 0) >= 2:
-                    errors.append(op.get("message"))
+                    # foxglove 0.30.3 sends an advertisement before it records the channel as
+                    # advertised to this client (`advertise_channels` in connected_client.rs), so a
+                    # subscribe that comes back fast enough is refused as an unknown channel. Retry
+                    # such a channel once; anything else is an error.
+                    text = op.get("message") or ""
+                    prefix = "Unknown channel ID: "
+                    cid = int(text[len(prefix):]) if text.startswith(prefix) and text[len(prefix):].isdigit() else None
+                    if cid in channels and cid not in resubscribed:
+                        resubscribed.append(cid)
+                        for sid in [k for k, v in subs.items() if v == cid]:
+                            del subs[sid]
+                        subs[next_sub] = cid
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": next_sub, "channelId": cid}]}))
+                        next_sub += 1
+                    else:
+                        errors.append(text)
                 continue
             if msg[0] != 0x01:
                 continue
@@ -126,6 +142,7 @@ def main():
                 "validated": validated,
                 "invalid": invalid,
                 "errors": errors,
+                "resubscribed": resubscribed,
                 "closed_by_server": closed_by_server,
             }
         )
