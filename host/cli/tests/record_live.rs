@@ -151,7 +151,7 @@ fn a_restarted_recorder_starts_the_next_recording_and_reports_the_gap() {
     assert!(e.contains(&format!("{} exists: recording to {}", out.display(), second.display())), "{e}");
     assert!(
         e.contains(&format!(
-            "joined a running head at head time 50.0 s: {} ends at 20.0 s, so 30.0 s of telemetry were not recorded",
+            "joined a running head at head time 50.0 s: {} ends at head time 20.0 s: 30.0 s of telemetry are in neither",
             out.display()
         )),
         "{e}"

@@ -152,18 +152,7 @@ fn run_recording(path: &std::path::Path, args: &Args, format: Format) -> Result<
         // The next of a series (a host restarted mid-dive): how much of the head's time is in
         // neither recording.
         let before = path.with_file_name(name);
-        let note = match subnav_link::record::uplink_stats(&before) {
-            Ok(b) => match b.gap_to(&dec.stats()) {
-                Some((x, y)) => format!(
-                    "continues {}, which ends at head time {:.1} s: {:.1} s of telemetry are in neither",
-                    before.display(),
-                    x as f64 * 1e-6,
-                    (y - x) as f64 * 1e-6
-                ),
-                None => format!("continues {}, of an earlier boot or overlapping this one", before.display()),
-            },
-            Err(e) => format!("continues {}, which is unreadable: {e:#}", before.display()),
-        };
+        let note = format!("continues {}", subnav_link::record::continuation_note(&before, &dec.stats()));
         if format == Format::Text {
             eprintln!("series: {note}");
         } else {

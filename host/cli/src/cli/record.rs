@@ -196,18 +196,8 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
 /// of the series' previous recording.
 fn joined_note(previous: Option<&std::path::Path>, now: &LinkStats) -> String {
     let at = now.first_head_us.map_or(0.0, |t| t as f64 * 1e-6);
-    let gap = previous.map(|p| (p.display(), subnav_link::record::uplink_stats(p)));
-    match gap {
-        Some((p, Ok(before))) => match before.gap_to(now) {
-            Some((a, b)) => format!(
-                "joined a running head at head time {at:.1} s: {} ends at {:.1} s, so {:.1} s of telemetry were not recorded",
-                p,
-                a as f64 * 1e-6,
-                (b - a) as f64 * 1e-6
-            ),
-            None => format!("joined a running head at head time {at:.1} s; {p} is of an earlier boot or overlaps this one"),
-        },
-        Some((p, Err(e))) => format!("joined a running head at head time {at:.1} s; the previous recording {p} is unreadable: {e:#}"),
+    match previous {
+        Some(p) => format!("joined a running head at head time {at:.1} s: {}", subnav_link::record::continuation_note(p, now)),
         None => format!("joined a running head at head time {at:.1} s (no Boot seen): its first {at:.1} s are not recorded"),
     }
 }

@@ -190,6 +190,22 @@ pub fn uplink_stats(path: &Path) -> anyhow::Result<crate::uplink::LinkStats> {
     Ok(dec.stats())
 }
 
+/// What of the head's time lies between the recording `previous` and a stream `next` that
+/// continues it (a restarted host's), in words: where `previous` ends and how much is in
+/// neither; or that `previous` is of an earlier boot (or overlaps), or is unreadable.
+pub fn continuation_note(previous: &Path, next: &crate::uplink::LinkStats) -> String {
+    let p = previous.display();
+    match uplink_stats(previous) {
+        Ok(before) => match before.gap_to(next) {
+            Some((a, b)) => {
+                format!("{p} ends at head time {:.1} s: {:.1} s of telemetry are in neither", a as f64 * 1e-6, (b - a) as f64 * 1e-6)
+            }
+            None => format!("{p} is of an earlier boot or overlaps this one"),
+        },
+        Err(e) => format!("{p} is unreadable: {e:#}"),
+    }
+}
+
 #[cfg(test)]
 mod series_tests {
     use super::*;
