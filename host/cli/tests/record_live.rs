@@ -28,18 +28,7 @@ fn records_a_tcp_source_losslessly() {
         .unwrap(),
     );
     for i in 0..200u64 {
-        let nav = NavSolution {
-            t_us: i * 100_000,
-            mode: NavMode::Aided,
-            pos_ned_m: [i as f32, 0.0, 5.0],
-            vel_ned_mps: [1.0, 0.0, 0.0],
-            att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
-            sigma_pos_m: [1.0; 3],
-            sigma_vel_mps: [0.1; 3],
-            sigma_att_rad: [0.01; 3],
-            cov_ne_m2: 0.0,
-        };
-        bytes.extend_from_slice(encode(&Uplink::Nav(nav), &mut buf).unwrap());
+        bytes.extend(nav_frame(i * 100_000, i as f32, &mut buf));
     }
     // The head re-acquired its position once.
     let health = FilterHealth {
@@ -94,11 +83,12 @@ fn record_without_a_source_says_what_to_give() {
     assert!(e.contains("--tcp") && e.contains("--serial"), "{e}");
 }
 
-fn nav_frame(t_us: u64, buf: &mut [u8]) -> Vec<u8> {
+/// A navigation frame at `t_us`, `north_m` north, moving north at 1 m/s.
+fn nav_frame(t_us: u64, north_m: f32, buf: &mut [u8]) -> Vec<u8> {
     let nav = NavSolution {
         t_us,
         mode: NavMode::Aided,
-        pos_ned_m: [0.0, 0.0, 5.0],
+        pos_ned_m: [north_m, 0.0, 5.0],
         vel_ned_mps: [1.0, 0.0, 0.0],
         att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
         sigma_pos_m: [1.0; 3],
@@ -133,12 +123,12 @@ fn a_restarted_recorder_starts_the_next_recording_and_reports_the_gap() {
     let boot = Uplink::Boot(boot_message(Board::Stm32F405, [1, 0, 0], 0, CalibrationInUse::NO_STORE, ResetCause::PowerOn));
     let mut before = encode(&boot, &mut buf).unwrap().to_vec();
     for i in 0..=200 {
-        before.extend(nav_frame(i * 100_000, &mut buf));
+        before.extend(nav_frame(i * 100_000, 0.0, &mut buf));
     }
     // The new host's first bytes are the end of a frame.
-    let mut after = nav_frame(49_900_000, &mut buf).split_off(9);
+    let mut after = nav_frame(49_900_000, 0.0, &mut buf).split_off(9);
     for i in 500..600 {
-        after.extend(nav_frame(i * 100_000, &mut buf));
+        after.extend(nav_frame(i * 100_000, 0.0, &mut buf));
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("dive.snrec");
@@ -158,7 +148,7 @@ fn a_restarted_recorder_starts_the_next_recording_and_reports_the_gap() {
     );
     assert_eq!(std::fs::read(&out).unwrap(), first, "the first recording is untouched");
     let l = read_file(&second).unwrap();
-    assert!(l.stream_bytes(Stream::Uplink).ends_with(&nav_frame(59_900_000, &mut buf)));
+    assert!(l.stream_bytes(Stream::Uplink).ends_with(&nav_frame(59_900_000, 0.0, &mut buf)));
     // `decode` of the second recording says the same.
     let o = Command::new(env!("CARGO_BIN_EXE_subnav")).args(["decode", "--quiet", "--file"]).arg(&second).output().unwrap();
     let e = String::from_utf8_lossy(&o.stderr);

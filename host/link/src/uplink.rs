@@ -152,7 +152,7 @@ pub fn describe(c: &Compatibility) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use subnav_wire::{self as wire, Board, CommandAck, boot_message};
 
@@ -174,7 +174,8 @@ mod tests {
         assert_eq!(dec.stats().frames_ok, 2);
     }
 
-    fn nav(t_us: u64) -> Uplink {
+    /// An aided navigation solution at `t_us` (the link's tests' stand-in for a head's stream).
+    pub(crate) fn nav(t_us: u64) -> Uplink {
         Uplink::Nav(wire::NavSolution {
             t_us,
             mode: wire::NavMode::Aided,

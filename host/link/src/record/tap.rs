@@ -147,7 +147,7 @@ impl QemuRecorder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use subnav_wire::{self as wire, Board, CalibrationInUse, NavMode, NavSolution, ResetCause, Uplink, boot_message};
+    use subnav_wire::{self as wire, Board, CalibrationInUse, ResetCause, Uplink, boot_message};
 
     /// A host killed at 3 s and back at 6 s of head time, its bytes arriving in pieces that
     /// cut frames: the first recording ends before 3 s, the second starts at 6 s mid-frame,
@@ -159,18 +159,7 @@ mod tests {
         let boot = boot_message(Board::QemuMps2An386, [0, 1, 0], 0, CalibrationInUse::NO_STORE, ResetCause::PowerOn);
         bytes.extend_from_slice(wire::encode(&Uplink::Boot(boot), &mut buf).unwrap());
         for k in 0..100u64 {
-            let nav = NavSolution {
-                t_us: k * 100_000,
-                mode: NavMode::Aided,
-                pos_ned_m: [0.0; 3],
-                vel_ned_mps: [0.0; 3],
-                att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
-                sigma_pos_m: [1.0; 3],
-                sigma_vel_mps: [0.1; 3],
-                sigma_att_rad: [0.01; 3],
-                cov_ne_m2: 0.0,
-            };
-            bytes.extend_from_slice(wire::encode(&Uplink::Nav(nav), &mut buf).unwrap());
+            bytes.extend_from_slice(wire::encode(&crate::uplink::tests::nav(k * 100_000), &mut buf).unwrap());
         }
         let d = tempfile::tempdir().unwrap();
         let path = d.path().join("dive.snrec");
