@@ -53,6 +53,8 @@ impl HostRecorder {
 
     /// One chunk that crossed the link at host time `t_host_us`: recorded if the host is alive.
     pub fn chunk(&mut self, stream: Stream, t_host_us: u64, data: &[u8]) -> Result<()> {
+        // A host that lives through the run records every byte; only an outage needs the time.
+        let Some((killed_at, back_at)) = self.outage_head_us else { return self.write(stream, t_host_us, data) };
         if stream == Stream::Uplink {
             let latest = &mut self.latest_head_us;
             self.world.feed(data, |e| {
@@ -62,7 +64,6 @@ impl HostRecorder {
             });
         }
         let t = self.latest_head_us;
-        let Some((killed_at, back_at)) = self.outage_head_us else { return self.write(stream, t_host_us, data) };
         // Killed at `killed_at` (the first life only): what was written is on disk (each chunk is).
         if t >= killed_at
             && self.written.is_empty()
