@@ -28,6 +28,10 @@ use subnav_core::nav::dvl::DvlMeasurement;
 use subnav_core::nav::{NavConfig, NavError, NavFilter15, NavInit};
 use subnav_wire::{CompassReport, DvlSample, DvlTracking, FilterHealth, ImuSample, NavMode, NavSolution};
 
+/// Warm start after a reset while moving (the board's warm-start record).
+#[path = "estimator_warm.rs"]
+pub mod warm;
+
 const ALIGN_S: f32 = 1.0;
 const ALIGN_MAX_S: f32 = 10.0;
 /// Initial yaw 1-sigma when no compass fix came during alignment. Capped below pi/2: with larger
