@@ -133,6 +133,10 @@ pub fn nav_config() -> NavConfig {
     cfg.accel_bias_rw = IMU_ICM42688P.accel_bias_rw;
     cfg.init_sigma_gyro_bias = IMU_ICM42688P.gyro_bias_sigma;
     cfg.init_sigma_accel_bias = IMU_ICM42688P.accel_bias_sigma;
+    // The IMU's noise is the datasheet's typical figure: a unit that is noisier (a bad part,
+    // vibration from the thrusters) widens the filter instead of starving it at the gates
+    // (`crate::ukf::adapt::NisQScale`).
+    cfg.imu_q_adapt = crate::ukf::QScaleConfig::on();
     cfg
 }
 

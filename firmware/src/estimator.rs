@@ -46,6 +46,15 @@ const RESET_YAW_FIXES: u32 = 30;
 /// Consecutive gate-refused, mutually consistent position fixes that trigger a position reset
 /// (25 s of USBL at one fix per 5 s; an outlier of a working USBL comes alone).
 const RESET_POSITION_FIXES: u32 = 5;
+/// A working DVL refused by the gate for this long (and at least `DVL_RESET_MIN_REFUSED`
+/// reports) resets the velocity to the DVL's (PX4 EKF2's reset on a timeout of refused
+/// measurements): 5 s is 25-50 reports; a DVL's own faults (a bad ping, a lost lock) come as
+/// single reports or as invalid ones, which do not count.
+const DVL_RESET_AFTER_S: f32 = 5.0;
+const DVL_RESET_MIN_REFUSED: u32 = 10;
+/// Attitude error added to the filter's own when the DVL's velocity is turned into NED at a
+/// velocity reset (the filter's attitude may be off too when its velocity is).
+const DVL_RESET_ATTITUDE_SIGMA_RAD: f32 = 0.05;
 /// Minimum mean resultant length of a consistent set of angles: 0.98 is a circular standard
 /// deviation of 11.5 deg (`sqrt(-2 ln R)`), twice the worst compass RMSE measured in the
 /// simulated dives (6.3 deg).
@@ -215,6 +224,24 @@ struct Align {
     n: u32,
     sum_accel: [f32; 3],
     sum_gyro: [f32; 3],
+    /// Sums of squares, for the IMU's noise measured at rest.
+    sum_sq_accel: [f32; 3],
+    sum_sq_gyro: [f32; 3],
+    first_accel: [f32; 3],
+    first_gyro: [f32; 3],
+}
+
+impl Align {
+    /// Per-axis mean and sample variance (mean over the axes) of `sum`, `sum_sq` over `n`.
+    fn mean_var(n: u32, sum: &[f32; 3], sum_sq: &[f32; 3]) -> ([f32; 3], f32) {
+        let nf = n.max(1) as f32;
+        let mean = sum.map(|v| v / nf);
+        let mut var = 0.0;
+        for (m, sq) in mean.iter().zip(sum_sq) {
+            var += (sq / nf - m * m).max(0.0);
+        }
+        (mean, var / 3.0 * nf / (nf - 1.0).max(1.0))
+    }
 }
 
 pub struct Estimator {
@@ -253,6 +280,12 @@ pub struct Estimator {
     last_gyro_radps: [f32; 3],
     /// DVL velocities fused (accepted by the gate) since boot.
     pub dvl_fused: u32,
+    /// The current run of gate-refused DVL velocities: the filter time of its first refusal and
+    /// its length.
+    dvl_refused_since_us: Option<u64>,
+    dvl_refused_run: u32,
+    /// Velocity resets done (a working DVL refused for longer than `DVL_RESET_AFTER_S`).
+    pub velocity_resets: u32,
     /// The compass's wave-error tracker (`compass::WaveSigma`), its heading reference carried by
     /// the gyro's turn about the vertical between fixes, and the last IMU time.
     wave: compass::WaveSigma,
@@ -297,6 +330,9 @@ impl Estimator {
             input_rejects: 0,
             last_gyro_radps: [0.0; 3],
             dvl_fused: 0,
+            dvl_refused_since_us: None,
+            dvl_refused_run: 0,
+            velocity_resets: 0,
             imu_correction: None,
             wave: compass::WaveSigma::default(),
             last_imu_us: None,
@@ -357,6 +393,9 @@ impl Estimator {
         self.gyro_bias_align = [0.0; 3];
         self.input_rejects = 0;
         self.last_gyro_radps = [0.0; 3];
+        self.dvl_refused_since_us = None;
+        self.dvl_refused_run = 0;
+        self.velocity_resets = 0;
         self.wave.reset();
         self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
         self.last_imu_us = None;
@@ -426,11 +465,18 @@ impl Estimator {
         }
         let start = *self.align.start_us.get_or_insert(s.t_us);
         self.align.n += 1;
-        for (acc, v) in self.align.sum_accel.iter_mut().zip(s.accel_mps2) {
-            *acc += v;
+        // Deviations from the first sample: the sums of squares stay well conditioned in f32.
+        if self.align.n == 1 {
+            self.align.first_accel = s.accel_mps2;
+            self.align.first_gyro = s.gyro_radps;
         }
-        for (acc, v) in self.align.sum_gyro.iter_mut().zip(s.gyro_radps) {
-            *acc += v;
+        let (a0, g0) = (self.align.first_accel, self.align.first_gyro);
+        for k in 0..3 {
+            let (da, dg) = (s.accel_mps2[k] - a0[k], s.gyro_radps[k] - g0[k]);
+            self.align.sum_accel[k] += da;
+            self.align.sum_gyro[k] += dg;
+            self.align.sum_sq_accel[k] += da * da;
+            self.align.sum_sq_gyro[k] += dg * dg;
         }
         let elapsed_s = s.t_us.saturating_sub(start) as f32 * 1e-6;
         if elapsed_s >= ALIGN_S && (self.yaw_fix.is_some() || elapsed_s >= ALIGN_MAX_S) {
@@ -445,17 +491,26 @@ impl Estimator {
     #[inline(never)]
     fn finish_alignment(&mut self, t_us: u64) -> Result<(), NavError> {
         let n = self.align.n as f32;
-        let f = self.align.sum_accel.map(|v| v / n);
+        let (da, var_accel) = Align::mean_var(self.align.n, &self.align.sum_accel, &self.align.sum_sq_accel);
+        let (dg, var_gyro) = Align::mean_var(self.align.n, &self.align.sum_gyro, &self.align.sum_sq_gyro);
+        let f = [0, 1, 2].map(|k| self.align.first_accel[k] + da[k]);
         let (roll, pitch) = head::level_from_accel(f);
-        self.gyro_bias_align = self.align.sum_gyro.map(|v| v / n);
+        self.gyro_bias_align = [0, 1, 2].map(|k| self.align.first_gyro[k] + dg[k]);
+        // The IMU's white noise measured at rest, against the tuning: the process noise starts
+        // at the larger ratio (an IMU noisier than configured), and the at-rest means are
+        // trusted only as far as that noise allows.
+        let rate = self.cfg.imu_rate_hz;
+        let noise_scale = (var_gyro / (self.cfg.gyro_arw * self.cfg.gyro_arw * rate))
+            .max(var_accel / (self.cfg.accel_vrw * self.cfg.accel_vrw * rate));
         let (yaw, yaw_sigma) = self.yaw_fix.unwrap_or((0.0, YAW_UNKNOWN_SIGMA_RAD));
         let mut cfg = self.cfg;
         cfg.init_sigma_att_rad[2] = yaw_sigma.max(cfg.init_sigma_att_rad[2]);
-        cfg.init_sigma_att_rad[0] = ALIGNED_TILT_SIGMA_RAD;
-        cfg.init_sigma_att_rad[1] = ALIGNED_TILT_SIGMA_RAD;
+        let tilt_var = ALIGNED_TILT_SIGMA_RAD * ALIGNED_TILT_SIGMA_RAD + var_accel / (n * cfg.gravity_mps2 * cfg.gravity_mps2);
+        cfg.init_sigma_att_rad[0] = libm::sqrtf(tilt_var);
+        cfg.init_sigma_att_rad[1] = libm::sqrtf(tilt_var);
         // What is left of the gyro bias after the at-rest estimate: white noise over the
-        // alignment plus the Earth rate, with margin.
-        cfg.init_sigma_gyro_bias = ALIGNED_GYRO_BIAS_SIGMA_RADPS;
+        // alignment plus the Earth rate, with margin, and the mean's own noise.
+        cfg.init_sigma_gyro_bias = libm::sqrtf(ALIGNED_GYRO_BIAS_SIGMA_RADPS * ALIGNED_GYRO_BIAS_SIGMA_RADPS + var_gyro / n);
         let init = NavInit {
             t_us,
             att_nb: head::attitude(roll, pitch, yaw),
@@ -464,6 +519,9 @@ impl Estimator {
         };
         let Some(nav) = self.nav.as_mut() else { return Err(NavError::BadConfig) };
         nav.reinit(cfg, init)?;
+        if noise_scale.is_finite() {
+            nav.seed_imu_q_scale(noise_scale);
+        }
         let p = aligned_covariance(nav.covariance(), yaw, cfg.init_sigma_accel_bias, cfg.gravity_mps2);
         nav.set_covariance(p)?;
         self.running = true;
@@ -692,6 +750,30 @@ impl Estimator {
         let rep = nav.update_dvl(&m, &self.dvl_mounting)?;
         if rep.accepted {
             self.dvl_fused = self.dvl_fused.saturating_add(1);
+            self.dvl_refused_since_us = None;
+            self.dvl_refused_run = 0;
+            return Ok(());
+        }
+        let since = *self.dvl_refused_since_us.get_or_insert(s.t_us);
+        self.dvl_refused_run = self.dvl_refused_run.saturating_add(1);
+        let refused_s = s.t_us.saturating_sub(since) as f32 * 1e-6;
+        if refused_s >= DVL_RESET_AFTER_S && self.dvl_refused_run >= DVL_RESET_MIN_REFUSED {
+            // The DVL has been refused for longer than a velocity error can honestly explain
+            // with it working (its own faults come as single reports or as no lock, not as a
+            // consistent velocity for seconds): the filter's velocity is wrong. Take the DVL's,
+            // in NED through the filter's attitude, with its noise plus the attitude's share.
+            let sigma = head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps);
+            let v_dvl = nalgebra::Vector3::from(m.vel_dvl_mps);
+            let w = nalgebra::Vector3::from(self.last_gyro_radps) - nav.nominal().gyro_bias_radps;
+            let v_body = self.dvl_mounting.rot_body_from_dvl * v_dvl - w.cross(&self.dvl_mounting.lever_arm_body_m);
+            let v_ned = nav.nominal().att_nb * v_body;
+            let att_var = nav.covariance().fixed_view::<3, 3>(subnav_core::nav::state::ATT, subnav_core::nav::state::ATT).trace();
+            let var = sigma * sigma + v_ned.norm_squared() * (att_var + DVL_RESET_ATTITUDE_SIGMA_RAD * DVL_RESET_ATTITUDE_SIGMA_RAD);
+            if nav.reset_velocity(v_ned.into(), [var; 3]).is_ok() {
+                self.velocity_resets = self.velocity_resets.wrapping_add(1);
+            }
+            self.dvl_refused_since_us = None;
+            self.dvl_refused_run = 0;
         }
         Ok(())
     }

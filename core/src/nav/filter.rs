@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, Quaternion, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use crate::ukf::gate::chi2_999;
-use crate::ukf::{AdaptConfig, MeasNoise, Ukf, UkfConfig, UkfError, UpdateReport};
+use crate::ukf::{AdaptConfig, MeasNoise, NisQScale, QScaleConfig, Ukf, UkfConfig, UkfError, UpdateReport};
 use subnav_wire::messages::{ImuSample, NavMode, NavSolution};
 
 use super::history::{CURRENT_WITHIN_US, History, PastEpoch, Snapshot};
@@ -106,6 +106,10 @@ pub struct NavConfig {
     /// A position or velocity measurement stamped more than this after the filter time is
     /// refused (`NavError::FromFuture`); up to it, it is fused as current. µs.
     pub max_future_us: u64,
+    /// The IMU's process noise (attitude and velocity random walks) scaled to match the
+    /// velocity and position innovations, refused ones included ([`NisQScale`]): an IMU noisier
+    /// than `gyro_arw` / `accel_vrw` widens the filter instead of starving it at its gates.
+    pub imu_q_adapt: QScaleConfig<f32>,
 }
 
 impl Default for NavConfig {
@@ -173,6 +177,7 @@ impl Default for NavConfig {
             aided_timeout_s: 5.0,
             max_future_us: 200_000,
             coast_position_rw: 0.15,
+            imu_q_adapt: QScaleConfig::off(),
         }
     }
 }
@@ -212,6 +217,7 @@ impl NavConfig {
             && pos(self.markov_tau_s)
             && self.coast_position_rw.is_finite()
             && self.coast_position_rw >= 0.0
+            && self.imu_q_adapt.is_valid()
             && [self.heading, self.depth, self.velocity, self.position]
                 .iter()
                 .all(|s| pos(s.sigma) && s.sigma_floor >= 0.0 && s.gate > 0.0 && s.gate_state_max > 0.0)
@@ -318,6 +324,9 @@ pub struct NavFilter<const N: usize, const S: usize> {
     pub(crate) hist: History,
     pub(crate) delayed_updates: u32,
     pub(crate) delay_rejects: u32,
+    /// The IMU process-noise scale (`NavConfig::imu_q_adapt`) and the scale the UKF's `Q` holds.
+    pub(crate) q_scale: NisQScale<f32>,
+    pub(crate) q_scale_applied: f32,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -356,6 +365,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             hist,
             delayed_updates: 0,
             delay_rejects: 0,
+            q_scale: NisQScale::default(),
+            q_scale_applied: 1.0,
         })
     }
 
@@ -387,6 +398,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.hist.restart(self.t_us, &self.nom);
         self.delayed_updates = 0;
         self.delay_rejects = 0;
+        self.q_scale = NisQScale::default();
+        self.q_scale_applied = 1.0;
         Ok(())
     }
 
@@ -421,10 +434,16 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
 
     /// Process noise over one nominal covariance interval.
     fn nominal_q(cfg: &NavConfig) -> SMatrix<f32, N, N> {
+        Self::scaled_q(cfg, 1.0)
+    }
+
+    /// Process noise over one nominal covariance interval with the IMU's white-noise parts
+    /// (attitude and velocity random walks) scaled by `imu_scale` (a variance ratio).
+    fn scaled_q(cfg: &NavConfig, imu_scale: f32) -> SMatrix<f32, N, N> {
         let t = cfg.cov_dt_s();
         let mut d = SVector::<f32, N>::zeros();
-        group_diag(&mut d, ATT, cfg.gyro_arw * cfg.gyro_arw * t);
-        group_diag(&mut d, VEL, cfg.accel_vrw * cfg.accel_vrw * t);
+        group_diag(&mut d, ATT, cfg.gyro_arw * cfg.gyro_arw * t * imu_scale);
+        group_diag(&mut d, VEL, cfg.accel_vrw * cfg.accel_vrw * t * imu_scale);
         group_diag(&mut d, POS, cfg.pos_rw * cfg.pos_rw * t);
         group_diag(&mut d, BG, cfg.gyro_bias_rw * cfg.gyro_bias_rw * t);
         group_diag(&mut d, BA, cfg.accel_bias_rw * cfg.accel_bias_rw * t);
@@ -729,6 +748,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if let Some(n) = self.nis.get_mut(kind) {
             *n = rep.nis;
         }
+        if kind == KIND_VELOCITY || kind == KIND_POSITION {
+            self.adapt_imu_q(rep.nis, 3);
+        }
         if rep.accepted && delayed {
             self.delayed_updates = self.delayed_updates.saturating_add(1);
         }
@@ -738,6 +760,43 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             self.inject()?;
         }
         Ok(rep)
+    }
+
+    /// Feed one velocity or position NIS (accepted or refused) to the IMU process-noise scale
+    /// and give the UKF the new `Q` when the scale moved by more than 10 % since the last time
+    /// (not with the Sage-Husa `Q` recursion on: that one owns `Q`).
+    fn adapt_imu_q(&mut self, nis: f32, m: usize) {
+        let cfg = self.cfg.imu_q_adapt;
+        if !cfg.on || self.cfg.ukf.adapt.q_cov {
+            return;
+        }
+        self.q_scale.observe(&cfg, nis, m);
+        let s = self.q_scale.scale();
+        let ratio = s / self.q_scale_applied;
+        if (ratio > 1.1 || ratio < 1.0 / 1.1) && self.ukf.set_q(Self::scaled_q(&self.cfg, s)).is_ok() {
+            self.q_scale_applied = s;
+        }
+    }
+
+    /// Start the IMU process-noise scale at `scale` (e.g. the IMU's noise measured at rest
+    /// against the configuration), within the configured bounds; no effect with the
+    /// adaptation off.
+    pub fn seed_imu_q_scale(&mut self, scale: f32) {
+        let cfg = self.cfg.imu_q_adapt;
+        if !cfg.on || self.cfg.ukf.adapt.q_cov || !scale.is_finite() {
+            return;
+        }
+        self.q_scale.seed(&cfg, scale);
+        let s = self.q_scale.scale();
+        if self.ukf.set_q(Self::scaled_q(&self.cfg, s)).is_ok() {
+            self.q_scale_applied = s;
+        }
+    }
+
+    /// The IMU process-noise scale in use (variance ratio against the configuration, see
+    /// `NavConfig::imu_q_adapt`).
+    pub fn imu_q_scale(&self) -> f32 {
+        self.q_scale_applied
     }
 
     /// Count a non-finite input that never reached the UKF.

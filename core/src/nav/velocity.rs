@@ -51,3 +51,39 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.end_update(KIND_VELOCITY, t_us, r, delayed)
     }
 }
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// Reset the velocity to `vel_ned_mps` with per-axis variances `var_ned_m2ps2` (NED): the
+    /// velocity's correlations with every other error state are dropped (the estimate is new),
+    /// the nominal's recorded past restarts (it is no longer one trajectory), the velocity noise
+    /// statistics restart from the configuration. Attitude and position are left alone.
+    ///
+    /// For the estimator's velocity aid when the gate has refused a velocity sensor that works
+    /// for longer than a velocity error can honestly explain (a filter gone free-inertial), as
+    /// [`NavFilter::reset_position`] is for position fixes. Refused input changes nothing.
+    pub fn reset_velocity(&mut self, vel_ned_mps: [f32; 3], var_ned_m2ps2: [f32; 3]) -> Result<(), NavError> {
+        if !vel_ned_mps.iter().all(|v| v.is_finite()) || !var_ned_m2ps2.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        self.begin_update(&[])?;
+        let mut p = *self.ukf.p();
+        for (k, var) in var_ned_m2ps2.iter().enumerate() {
+            for i in 0..N {
+                for idx in [(VEL + k, i), (i, VEL + k)] {
+                    if let Some(v) = p.get_mut(idx) {
+                        *v = 0.0;
+                    }
+                }
+            }
+            if let Some(v) = p.get_mut((VEL + k, VEL + k)) {
+                *v = *var;
+            }
+        }
+        self.ukf.set_p(p)?;
+        self.nom.vel_ned_mps = Vector3::from(vel_ned_mps);
+        self.hist.restart(self.t_us, &self.nom);
+        self.noise_vel = self.cfg.velocity.noise();
+        self.noise_vel.k = self.cfg.ukf.adapt.k0;
+        Ok(())
+    }
+}

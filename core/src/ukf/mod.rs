@@ -20,7 +20,7 @@ pub mod pd;
 pub mod space;
 pub mod weights;
 
-pub use adapt::{AdaptConfig, MeasNoise};
+pub use adapt::{AdaptConfig, MeasNoise, NisQScale, QScaleConfig};
 pub use filter::{Ukf, UkfConfig, UkfError, UkfHealth, UpdateReport};
 pub use space::{AngleSpace, Euclidean, Space, wrap_pi};
 pub use weights::SigmaWeights;
