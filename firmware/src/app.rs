@@ -29,6 +29,7 @@ use crate::calibration;
 use crate::store::{RecordStore, StoreError};
 
 use crate::estimator::Estimator;
+use crate::estimator::warm::{WARM_RECORD_BYTES, WARM_RECORD_PERIOD_US, WarmStart, WarmStartError};
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
 use crate::telemetry::{Telemetry, TelemetrySink};
 use crate::{FIRMWARE_VERSION, info, warn};
@@ -116,6 +117,12 @@ pub struct App {
     reset_cause: ResetCause,
     /// The last sequenced commands received (see [`RecentCommands`]).
     recent: RecentCommands,
+    /// Warm start (`estimator::warm`): armed at boot from a valid record, holding the bound of
+    /// the reset's duration (s; negative: not armed; a plain number, not an `Option`, so the
+    /// `App` is still built in place), started by [`App::service_warm_record`] once the IMU has
+    /// levelled; and the period of the record the board keeps.
+    warm_armed_gap_s: f32,
+    warm_task: Periodic,
 }
 
 /// Sequenced commands remembered for duplicate detection.
@@ -312,6 +319,8 @@ impl App {
                 next: 0,
                 duplicates: 0,
             },
+            warm_armed_gap_s: -1.0,
+            warm_task: Periodic::new(WARM_RECORD_PERIOD_US),
         }
     }
 
@@ -323,6 +332,64 @@ impl App {
     /// Why the board started (read from its reset flags before [`App::boot`]; default power-on).
     pub fn set_reset_cause(&mut self, cause: ResetCause) {
         self.reset_cause = cause;
+    }
+
+    /// After a reset in motion: arm a warm start from `kept`, the record the board kept across
+    /// the reset (see `estimator::warm`), when the reset was a watchdog's, a brown-out or a
+    /// commanded reboot (never after a power-on: that memory holds nothing) and the record is
+    /// whole and valid; otherwise the head aligns cold, as before. `reset_gap_max_s`: the board's
+    /// bound of the time from the head's stop to this boot (a watchdog's two periods). Call after
+    /// [`App::set_reset_cause`], before the board loop; the warm start itself happens in
+    /// [`App::service_warm_record`] once the IMU has levelled.
+    pub fn warm_start_at_boot(&mut self, kept: &[u8], reset_gap_max_s: f32) -> Result<(), WarmStartError> {
+        self.warm_armed_gap_s = -1.0;
+        if !matches!(self.reset_cause, ResetCause::Watchdog | ResetCause::Brownout | ResetCause::Software) {
+            return Err(WarmStartError::NoRecord);
+        }
+        if !(reset_gap_max_s >= 0.0 && reset_gap_max_s.is_finite()) {
+            return Err(WarmStartError::Gap);
+        }
+        let rec = WarmStart::decode(kept)?;
+        info!("warm start armed: record of t={=u64} ms, reset gap <= {=f32} s", rec.t_us / 1000, reset_gap_max_s);
+        self.warm_armed_gap_s = reset_gap_max_s;
+        Ok(())
+    }
+
+    /// Every tick, with the board's memory that survives a reset (at least
+    /// `WARM_RECORD_BYTES`): while a warm start is armed, try it from the record there (the gap
+    /// bound: the record's period, the reset, the time since boot); otherwise keep the record
+    /// there every `WARM_RECORD_PERIOD_US` (zeros while the filter is not running, so an old
+    /// record never outlives a filter reset).
+    #[inline(never)] // keeps the record's temporaries out of the board loop's stack frame
+    pub fn service_warm_record(&mut self, now_us: u64, kept: &mut [u8]) {
+        if self.warm_armed_gap_s >= 0.0 {
+            let gap_s = WARM_RECORD_PERIOD_US as f32 * 1e-6 + self.warm_armed_gap_s + now_us as f32 * 1e-6;
+            match WarmStart::decode(kept).and_then(|rec| self.estimator.warm_start(&rec, gap_s)) {
+                Err(WarmStartError::NotYet) => {}
+                Ok(()) => {
+                    info!("warm started at t={=u64} ms (gap <= {=f32} s)", now_us / 1000, gap_s);
+                    self.warm_armed_gap_s = -1.0;
+                }
+                Err(e) => {
+                    warn!("warm start refused ({=?}): aligning cold", e);
+                    self.warm_armed_gap_s = -1.0;
+                }
+            }
+            return;
+        }
+        if self.warm_task.due(now_us) {
+            if let Some(dst) = kept.get_mut(..WARM_RECORD_BYTES) {
+                match self.estimator.warm_start_record(now_us) {
+                    Some(rec) => dst.copy_from_slice(&rec.encode()),
+                    None => dst.fill(0),
+                }
+            }
+        }
+    }
+
+    /// Whether a warm start is armed and not yet done.
+    pub fn warm_start_armed(&self) -> bool {
+        self.warm_armed_gap_s >= 0.0
     }
 
     /// The estimator (for inspection in tests and by boards).
@@ -760,6 +827,7 @@ impl App {
             }
             Command::ResetFilter => {
                 self.estimator.reset();
+                self.warm_armed_gap_s = -1.0;
                 return Ok(());
             }
             other => other,

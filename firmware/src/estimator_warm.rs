@@ -83,7 +83,6 @@ pub struct WarmStart {
 
 /// Why a record or a warm start was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum WarmStartError {
     /// No record: wrong header (never written, cleared, power-on contents) or wrong length.
     NoRecord,
@@ -99,6 +98,23 @@ pub enum WarmStartError {
     Running,
     /// The filter refused the initial state.
     Filter(NavError),
+}
+
+/// By name (the core's `NavError` has no defmt format).
+#[cfg(feature = "defmt")]
+impl defmt::Format for WarmStartError {
+    fn format(&self, f: defmt::Formatter) {
+        let name = match self {
+            Self::NoRecord => "NoRecord",
+            Self::Corrupt => "Corrupt",
+            Self::Invalid => "Invalid",
+            Self::Gap => "Gap",
+            Self::NotYet => "NotYet",
+            Self::Running => "Running",
+            Self::Filter(_) => "Filter",
+        };
+        defmt::write!(f, "{=str}", name)
+    }
 }
 
 fn finite(v: &[f32]) -> bool {
