@@ -349,8 +349,8 @@ impl App {
         if !(reset_gap_max_s >= 0.0 && reset_gap_max_s.is_finite()) {
             return Err(WarmStartError::Gap);
         }
-        let rec = WarmStart::decode(kept)?;
-        info!("warm start armed: record of t={=u64} ms, reset gap <= {=f32} s", rec.t_us / 1000, reset_gap_max_s);
+        let _record_ms = WarmStart::decode(kept)?.t_us / 1000;
+        info!("warm start armed: record of t={=u64} ms, reset gap <= {=f32} s", _record_ms, reset_gap_max_s);
         self.warm_armed_gap_s = reset_gap_max_s;
         Ok(())
     }
@@ -370,8 +370,8 @@ impl App {
                     info!("warm started at t={=u64} ms (gap <= {=f32} s)", now_us / 1000, gap_s);
                     self.warm_armed_gap_s = -1.0;
                 }
-                Err(e) => {
-                    warn!("warm start refused ({=?}): aligning cold", e);
+                Err(_e) => {
+                    warn!("warm start refused ({=?}): aligning cold", _e);
                     self.warm_armed_gap_s = -1.0;
                 }
             }

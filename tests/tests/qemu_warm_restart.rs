@@ -20,16 +20,17 @@ use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
 use subnav_sil::{Scenario, SimHead};
 use subnav_wire::{NavMode, NavSolution, ResetCause, Uplink};
 
-/// The dive: rest 15 s (the power-on alignment), descent to 10 m at 0.5 m/s, then 1 m/s on
-/// 30 m legs joined by half turns of 10 m radius; the hang at 75 s is in the first turn.
+/// The dive: rest 8 s (the power-on alignment), descent to 10 m at 0.5 m/s, then 1 m/s on
+/// 30 m legs joined by half turns of 10 m radius; the hang at 70 s is in the first turn.
 fn scenario() -> Scenario {
-    let survey = Lawnmower { descent_mps: 0.5, leg_m: 30.0, ..Lawnmower::default() };
-    Scenario { seed: 11, duration_s: RUN_S, survey, position_fixes: None, ..Scenario::default() }
+    let survey = Lawnmower { rest_s: 8.0, descent_mps: 0.5, leg_m: 30.0, ..Lawnmower::default() };
+    Scenario { seed: 11, duration_s: (HANG_MS + RUN_MS) as f64 * 1e-3, survey, position_fixes: None, ..Scenario::default() }
 }
 
-const HANG_MS: u64 = 75_000;
-/// World time of the run: the head runs `RUN_S - HANG_S` after its restart.
-const RUN_S: f64 = 135.0;
+const HANG_MS: u64 = 70_000;
+/// The head's run after each boot (`run_ms` counts on the boot's own clock, so it must pass the
+/// hang): the head navigates this long after the restart.
+const RUN_MS: u64 = 75_000;
 
 struct Restart {
     boots: Vec<ResetCause>,
@@ -41,8 +42,7 @@ struct Restart {
 fn run(warm: bool) -> Restart {
     let sc = scenario();
     let mut cfg = QemuConfig::new(subnav_tests::qemu_elf());
-    // The head's own clock restarts at the reset: it runs until the world reaches RUN_S.
-    cfg.run_ms = Some((RUN_S * 1000.0) as u64 - HANG_MS);
+    cfg.run_ms = Some(RUN_MS);
     cfg.timeout = Duration::from_secs(600);
     cfg.board_args = sc.board_args();
     cfg.board_args.push(format!("hang_at_ms={HANG_MS}"));
