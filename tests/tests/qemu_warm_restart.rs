@@ -16,9 +16,9 @@ use std::time::Duration;
 
 use subnav_base::trajectory::Lawnmower;
 use subnav_link::LinkEvent;
-use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+use subnav_link::qemu::{Downlinker, QemuConfig, QemuEvent, run_with_bus};
 use subnav_sil::{Scenario, SimHead};
-use subnav_wire::{NavMode, NavSolution, ResetCause, Uplink};
+use subnav_wire::{Command, NavMode, NavSolution, ResetCause, Uplink};
 
 /// The dive: rest 8 s (the power-on alignment), descent to 10 m at 0.5 m/s, then 1 m/s on
 /// 30 m legs joined by half turns of 10 m radius; the hang at 70 s is in the first turn.
@@ -50,8 +50,16 @@ fn run(warm: bool) -> Restart {
         cfg.board_args.push("warm=0".into());
     }
     let mut r = Restart { boots: vec![], before: vec![], after: vec![], logs: vec![] };
-    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(&sc)), |e, _| match e {
-        QemuEvent::Link(LinkEvent::Message(Uplink::Boot(b))) => r.boots.push(b.reset_cause),
+    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(&sc)), |e, down: &mut Downlinker| match e {
+        QemuEvent::Link(LinkEvent::Message(Uplink::Boot(b))) => {
+            r.boots.push(b.reset_cause);
+            // The board's configured start sets the dive's start time again at every boot; the
+            // host, seeing a reset, gives the head the world's time (the sun has moved on).
+            if r.boots.len() == 2 {
+                let utc = sc.start_utc_unix_us + HANG_MS as i64 * 1000;
+                down.send(Command::SetTime { t_us: 0, utc_unix_us: utc }).expect("send the time");
+            }
+        }
         QemuEvent::Link(LinkEvent::Message(Uplink::Nav(n))) => {
             if r.boots.len() > 1 { r.after.push(n) } else { r.before.push(n) }
         }
@@ -132,6 +140,12 @@ fn figures(r: &Restart) -> Figures {
     let max_horiz_m = tail.iter().map(|x| x.horiz_m).fold(0.0, f64::max);
     let rms_horiz_m = (tail.iter().map(|x| x.horiz_m * x.horiz_m).sum::<f64>() / tail.len().max(1) as f64).sqrt();
     let max_yaw_deg = tail.iter().map(|x| x.yaw_err_deg.abs()).fold(0.0, f64::max);
+    for x in s.iter().step_by(50) {
+        eprintln!(
+            "  t={:5.1} s {:?}: horizontal {:.2} m (N/E {:+.2}/{:+.2} sigma), yaw {:+.2} deg (sigma {:.2})",
+            x.t_s, x.mode, x.horiz_m, x.z_ne[0], x.z_ne[1], x.yaw_err_deg, x.yaw_sigma_deg
+        );
+    }
     let end = s.into_iter().last().expect("navigation after the restart");
     Figures { first_aided_s, inside, end, max_horiz_m, rms_horiz_m, max_yaw_deg }
 }
@@ -173,6 +187,12 @@ fn a_watchdog_reset_in_motion_warm_starts_and_navigates_within_3_sigma() {
     // Not within 3 sigma by claiming nothing: the position and heading stay useful.
     assert!(f.max_horiz_m < 10.0 && f.end.sigma_ne_m.iter().all(|s| *s < 5.0), "horizontal max {:.2} m, sigma {:?}", f.max_horiz_m, f.end.sigma_ne_m);
     assert!(f.end.yaw_sigma_deg < 2.0 && f.end.yaw_err_deg.abs() < 2.0, "yaw {:.2} deg, sigma {:.2}", f.end.yaw_err_deg, f.end.yaw_sigma_deg);
+    // The warm start's path (painted from the second boot on) stays within the stack bound of
+    // `qemu_dive::the_stack_peak_is_painted_and_reported` (32 KiB goal + 512 B, with 24 B static).
+    let line = r.logs.iter().rev().find(|l| l.starts_with("stack peak")).expect("stack report");
+    eprintln!("after the warm start: {line}");
+    let peak: u32 = line.split_whitespace().nth(2).and_then(|w| w.parse().ok()).expect("stack peak figure");
+    assert!(peak + 24 <= 32 * 1024 + 512, "{line}");
 }
 
 /// The cold restart for contrast (what the warm start replaces): measured for docs/RELIABILITY.md.
