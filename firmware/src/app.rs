@@ -1059,6 +1059,69 @@ mod tests {
         }
     }
 
+    /// The board's record cycle: a running head keeps its record (zeros before it runs and after
+    /// a filter reset); after a watchdog reset the next head warm starts from it (at 12 m, not
+    /// aligning for a second at the origin); after a power-on, or with a corrupted record, it
+    /// aligns cold.
+    #[test]
+    fn the_kept_record_warm_starts_the_next_boot_only_after_a_reset_and_only_when_whole() {
+        use crate::estimator::warm::{WARM_RECORD_BYTES, WarmStart, WarmStartError};
+        let mut kept = [0xA5u8; WARM_RECORD_BYTES];
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut head = StillHead { imu_reads: 0 };
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        app.service_warm_record(0, &mut kept);
+        assert_eq!(kept, [0u8; WARM_RECORD_BYTES], "cleared while aligning");
+        for ms in 0..=15_000u64 {
+            app.sensor_tick(ms * 1000, &mut head, &mut out);
+            app.service_warm_record(ms * 1000, &mut kept);
+        }
+        let rec = WarmStart::decode(&kept).expect("a running head keeps its record");
+        assert!((rec.pos_ned_m[2] - 12.0).abs() < 0.5 && rec.written_us == 15_000_000, "{rec:?}");
+
+        let boot = |cause: ResetCause, kept: &mut [u8; WARM_RECORD_BYTES]| {
+            let mut app = App::new(Board::QemuMps2An386);
+            app.set_reset_cause(cause);
+            let mut out = Vec::new();
+            app.boot(0, &mut out);
+            let armed = app.warm_start_at_boot(kept.as_slice(), 1.0);
+            let mut head = StillHead { imu_reads: 0 };
+            let mut running_at = None;
+            for ms in 0..=1_000u64 {
+                app.sensor_tick(ms * 1000, &mut head, &mut out);
+                app.service_warm_record(ms * 1000, kept);
+                if running_at.is_none() && app.estimator().solution(0).sigma_pos_m[0].is_finite() {
+                    running_at = Some(ms);
+                }
+            }
+            (armed, running_at, app)
+        };
+        let good = kept;
+        // Power-on: never (that memory holds nothing the head wrote).
+        assert_eq!(boot(ResetCause::PowerOn, &mut kept.clone()).0, Err(WarmStartError::NoRecord));
+        // Corrupted: a flipped bit, cold alignment (the still head aligns after 10 s without a compass).
+        let mut bad = good;
+        bad[40] ^= 0x10;
+        let (armed, running_at, _) = boot(ResetCause::Watchdog, &mut bad);
+        assert_eq!((armed, running_at), (Err(WarmStartError::Corrupt), None));
+        // Watchdog: warm started after the levelling, from the record, and keeps a new one.
+        let mut kept = good;
+        let (armed, running_at, app) = boot(ResetCause::Watchdog, &mut kept);
+        assert_eq!(armed, Ok(()));
+        assert!(running_at.is_some_and(|ms| (200..=260).contains(&ms)), "running at {running_at:?} ms");
+        assert!(!app.warm_start_armed());
+        let s = app.estimator().solution(0);
+        assert!((s.pos_ned_m[2] - 12.0).abs() < 0.5 && s.sigma_pos_m[0] < 10.0, "{s:?}");
+        let written = WarmStart::decode(&kept).map(|r| r.written_us);
+        assert!(written.is_ok_and(|t| t > 900_000), "the new boot's record, every 100 ms: {written:?}");
+        // A filter reset clears the record.
+        let mut app = app;
+        app.handle_command(1_000_000, Downlink { seq: 0, command: Command::ResetFilter }, &mut Vec::new());
+        app.service_warm_record(1_100_000, &mut kept);
+        assert_eq!(WarmStart::decode(&kept), Err(WarmStartError::NoRecord));
+    }
+
     #[test]
     fn sensors_feed_the_estimator_and_faults_are_reported_without_stopping_it() {
         let mut app = App::new(Board::QemuMps2An386);
