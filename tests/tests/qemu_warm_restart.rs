@@ -61,7 +61,11 @@ fn run(warm: bool) -> Restart {
             }
         }
         QemuEvent::Link(LinkEvent::Message(Uplink::Nav(n))) => {
-            if r.boots.len() > 1 { r.after.push(n) } else { r.before.push(n) }
+            if r.boots.len() > 1 {
+                r.after.push(n)
+            } else {
+                r.before.push(n)
+            }
         }
         QemuEvent::Log(l) => r.logs.push(l.message),
         _ => {}
@@ -183,10 +187,26 @@ fn a_watchdog_reset_in_motion_warm_starts_and_navigates_within_3_sigma() {
     assert!(r.logs.iter().any(|l| l.contains("warm started")), "warm started: {}", r.logs.join("\n"));
     assert!(f.first_aided_s.is_some_and(|t| t <= 30.0), "navigating again at {:?} s", f.first_aided_s);
     assert!(f.inside >= 0.95, "{:.1} % within 3 sigma after the restart", 100.0 * f.inside);
-    assert!(f.end.inside() && f.end.mode == NavMode::Aided, "at the end: {:?} N/E sigma, yaw {:.2} deg vs sigma {:.2}", f.end.z_ne, f.end.yaw_err_deg, f.end.yaw_sigma_deg);
+    assert!(
+        f.end.inside() && f.end.mode == NavMode::Aided,
+        "at the end: {:?} N/E sigma, yaw {:.2} deg vs sigma {:.2}",
+        f.end.z_ne,
+        f.end.yaw_err_deg,
+        f.end.yaw_sigma_deg
+    );
     // Not within 3 sigma by claiming nothing: the position and heading stay useful.
-    assert!(f.max_horiz_m < 10.0 && f.end.sigma_ne_m.iter().all(|s| *s < 5.0), "horizontal max {:.2} m, sigma {:?}", f.max_horiz_m, f.end.sigma_ne_m);
-    assert!(f.end.yaw_sigma_deg < 2.0 && f.end.yaw_err_deg.abs() < 2.0, "yaw {:.2} deg, sigma {:.2}", f.end.yaw_err_deg, f.end.yaw_sigma_deg);
+    assert!(
+        f.max_horiz_m < 10.0 && f.end.sigma_ne_m.iter().all(|s| *s < 5.0),
+        "horizontal max {:.2} m, sigma {:?}",
+        f.max_horiz_m,
+        f.end.sigma_ne_m
+    );
+    assert!(
+        f.end.yaw_sigma_deg < 2.0 && f.end.yaw_err_deg.abs() < 2.0,
+        "yaw {:.2} deg, sigma {:.2}",
+        f.end.yaw_err_deg,
+        f.end.yaw_sigma_deg
+    );
     // The warm start's path (painted from the second boot on) stays within the stack bound of
     // `qemu_dive::the_stack_peak_is_painted_and_reported` (32 KiB goal + 512 B, with 24 B static).
     let line = r.logs.iter().rev().find(|l| l.starts_with("stack peak")).expect("stack report");

@@ -42,11 +42,11 @@ use stm32f4xx_hal::{
     spi::{Mode, Phase, Polarity},
     watchdog::IndependentWatchdog,
 };
+use subnav_firmware::estimator::warm::WARM_RECORD_BYTES;
 use subnav_firmware::hal_bus::{HalI2c, HalSpi};
 use subnav_firmware::head_suite::{HeadSuite, NoDvl};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_firmware::estimator::warm::WARM_RECORD_BYTES;
 use subnav_wire::{Board, ResetCause};
 
 const HSE_HZ: u32 = 8_000_000;
