@@ -29,6 +29,7 @@ use crate::calibration;
 use crate::store::{RecordStore, StoreError};
 
 use crate::estimator::Estimator;
+use crate::estimator::warm::{WARM_RECORD_BYTES, WARM_RECORD_PERIOD_US, WarmStart, WarmStartError};
 use crate::sensors::{FaultLog, SensorFault, SensorSuite};
 use crate::telemetry::{Telemetry, TelemetrySink};
 use crate::{FIRMWARE_VERSION, info, warn};
@@ -116,6 +117,12 @@ pub struct App {
     reset_cause: ResetCause,
     /// The last sequenced commands received (see [`RecentCommands`]).
     recent: RecentCommands,
+    /// Warm start (`estimator::warm`): armed at boot from a valid record, holding the bound of
+    /// the reset's duration (s; negative: not armed; a plain number, not an `Option`, so the
+    /// `App` is still built in place), started by [`App::service_warm_record`] once the IMU has
+    /// levelled; and the period of the record the board keeps.
+    warm_armed_gap_s: f32,
+    warm_task: Periodic,
 }
 
 /// Sequenced commands remembered for duplicate detection.
@@ -312,6 +319,8 @@ impl App {
                 next: 0,
                 duplicates: 0,
             },
+            warm_armed_gap_s: -1.0,
+            warm_task: Periodic::new(WARM_RECORD_PERIOD_US),
         }
     }
 
@@ -323,6 +332,64 @@ impl App {
     /// Why the board started (read from its reset flags before [`App::boot`]; default power-on).
     pub fn set_reset_cause(&mut self, cause: ResetCause) {
         self.reset_cause = cause;
+    }
+
+    /// After a reset in motion: arm a warm start from `kept`, the record the board kept across
+    /// the reset (see `estimator::warm`), when the reset was a watchdog's, a brown-out or a
+    /// commanded reboot (never after a power-on: that memory holds nothing) and the record is
+    /// whole and valid; otherwise the head aligns cold, as before. `reset_gap_max_s`: the board's
+    /// bound of the time from the head's stop to this boot (a watchdog's two periods). Call after
+    /// [`App::set_reset_cause`], before the board loop; the warm start itself happens in
+    /// [`App::service_warm_record`] once the IMU has levelled.
+    pub fn warm_start_at_boot(&mut self, kept: &[u8], reset_gap_max_s: f32) -> Result<(), WarmStartError> {
+        self.warm_armed_gap_s = -1.0;
+        if !matches!(self.reset_cause, ResetCause::Watchdog | ResetCause::Brownout | ResetCause::Software) {
+            return Err(WarmStartError::NoRecord);
+        }
+        if !(reset_gap_max_s >= 0.0 && reset_gap_max_s.is_finite()) {
+            return Err(WarmStartError::Gap);
+        }
+        let _record_ms = WarmStart::decode(kept)?.t_us / 1000;
+        info!("warm start armed: record of t={=u64} ms, reset gap <= {=f32} s", _record_ms, reset_gap_max_s);
+        self.warm_armed_gap_s = reset_gap_max_s;
+        Ok(())
+    }
+
+    /// Every tick, with the board's memory that survives a reset (at least
+    /// `WARM_RECORD_BYTES`): while a warm start is armed, try it from the record there (the gap
+    /// bound: the record's period, the reset, the time since boot); otherwise keep the record
+    /// there every `WARM_RECORD_PERIOD_US` (zeros while the filter is not running, so an old
+    /// record never outlives a filter reset).
+    #[inline(never)] // keeps the record's temporaries out of the board loop's stack frame
+    pub fn service_warm_record(&mut self, now_us: u64, kept: &mut [u8]) {
+        if self.warm_armed_gap_s >= 0.0 {
+            let gap_s = WARM_RECORD_PERIOD_US as f32 * 1e-6 + self.warm_armed_gap_s + now_us as f32 * 1e-6;
+            match WarmStart::decode(kept).and_then(|rec| self.estimator.warm_start(&rec, gap_s)) {
+                Err(WarmStartError::NotYet) => {}
+                Ok(()) => {
+                    info!("warm started at t={=u64} ms (gap <= {=f32} s)", now_us / 1000, gap_s);
+                    self.warm_armed_gap_s = -1.0;
+                }
+                Err(_e) => {
+                    warn!("warm start refused ({=?}): aligning cold", _e);
+                    self.warm_armed_gap_s = -1.0;
+                }
+            }
+            return;
+        }
+        if self.warm_task.due(now_us) {
+            if let Some(dst) = kept.get_mut(..WARM_RECORD_BYTES) {
+                match self.estimator.warm_start_record(now_us) {
+                    Some(rec) => dst.copy_from_slice(&rec.encode()),
+                    None => dst.fill(0),
+                }
+            }
+        }
+    }
+
+    /// Whether a warm start is armed and not yet done.
+    pub fn warm_start_armed(&self) -> bool {
+        self.warm_armed_gap_s >= 0.0
     }
 
     /// The estimator (for inspection in tests and by boards).
@@ -760,6 +827,7 @@ impl App {
             }
             Command::ResetFilter => {
                 self.estimator.reset();
+                self.warm_armed_gap_s = -1.0;
                 return Ok(());
             }
             other => other,
@@ -989,6 +1057,69 @@ mod tests {
         fn read_depth(&mut self, t_us: u64, _rho: f32) -> Result<subnav_wire::DepthSample, SensorFault> {
             Ok(subnav_wire::DepthSample { t_us, pressure_pa: 101_325.0 + 12.0 * 1025.0 * 9.81, temp_c: 10.0, depth_m: 12.0 })
         }
+    }
+
+    /// The board's record cycle: a running head keeps its record (zeros before it runs and after
+    /// a filter reset); after a watchdog reset the next head warm starts from it (at 12 m, not
+    /// aligning for a second at the origin); after a power-on, or with a corrupted record, it
+    /// aligns cold.
+    #[test]
+    fn the_kept_record_warm_starts_the_next_boot_only_after_a_reset_and_only_when_whole() {
+        use crate::estimator::warm::{WARM_RECORD_BYTES, WarmStart, WarmStartError};
+        let mut kept = [0xA5u8; WARM_RECORD_BYTES];
+        let mut app = App::new(Board::QemuMps2An386);
+        let mut head = StillHead { imu_reads: 0 };
+        let mut out = Vec::new();
+        app.boot(0, &mut out);
+        app.service_warm_record(0, &mut kept);
+        assert_eq!(kept, [0u8; WARM_RECORD_BYTES], "cleared while aligning");
+        for ms in 0..=15_000u64 {
+            app.sensor_tick(ms * 1000, &mut head, &mut out);
+            app.service_warm_record(ms * 1000, &mut kept);
+        }
+        let rec = WarmStart::decode(&kept).expect("a running head keeps its record");
+        assert!((rec.pos_ned_m[2] - 12.0).abs() < 0.5 && rec.written_us == 15_000_000, "{rec:?}");
+
+        let boot = |cause: ResetCause, kept: &mut [u8; WARM_RECORD_BYTES]| {
+            let mut app = App::new(Board::QemuMps2An386);
+            app.set_reset_cause(cause);
+            let mut out = Vec::new();
+            app.boot(0, &mut out);
+            let armed = app.warm_start_at_boot(kept.as_slice(), 1.0);
+            let mut head = StillHead { imu_reads: 0 };
+            let mut running_at = None;
+            for ms in 0..=1_000u64 {
+                app.sensor_tick(ms * 1000, &mut head, &mut out);
+                app.service_warm_record(ms * 1000, kept);
+                if running_at.is_none() && app.estimator().solution(0).sigma_pos_m[0].is_finite() {
+                    running_at = Some(ms);
+                }
+            }
+            (armed, running_at, app)
+        };
+        let good = kept;
+        // Power-on: never (that memory holds nothing the head wrote).
+        assert_eq!(boot(ResetCause::PowerOn, &mut kept.clone()).0, Err(WarmStartError::NoRecord));
+        // Corrupted: a flipped bit, cold alignment (the still head aligns after 10 s without a compass).
+        let mut bad = good;
+        bad[40] ^= 0x10;
+        let (armed, running_at, _) = boot(ResetCause::Watchdog, &mut bad);
+        assert_eq!((armed, running_at), (Err(WarmStartError::Corrupt), None));
+        // Watchdog: warm started after the levelling, from the record, and keeps a new one.
+        let mut kept = good;
+        let (armed, running_at, app) = boot(ResetCause::Watchdog, &mut kept);
+        assert_eq!(armed, Ok(()));
+        assert!(running_at.is_some_and(|ms| (200..=260).contains(&ms)), "running at {running_at:?} ms");
+        assert!(!app.warm_start_armed());
+        let s = app.estimator().solution(0);
+        assert!((s.pos_ned_m[2] - 12.0).abs() < 0.5 && s.sigma_pos_m[0] < 10.0, "{s:?}");
+        let written = WarmStart::decode(&kept).map(|r| r.written_us);
+        assert!(written.is_ok_and(|t| t > 900_000), "the new boot's record, every 100 ms: {written:?}");
+        // A filter reset clears the record.
+        let mut app = app;
+        app.handle_command(1_000_000, Downlink { seq: 0, command: Command::ResetFilter }, &mut Vec::new());
+        app.service_warm_record(1_100_000, &mut kept);
+        assert_eq!(WarmStart::decode(&kept), Err(WarmStartError::NoRecord));
     }
 
     #[test]

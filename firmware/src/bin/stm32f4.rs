@@ -13,7 +13,11 @@
 //! - the camera trigger line: PB0, push-pull, pulsed high for each frame;
 //! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s;
 //! - the independent watchdog (IWDG, on the LSI: it runs even if the main clock fails), fed once
-//!   per pass of the board loop; the reset cause from `RCC_CSR` (read, then cleared) goes in `Boot`.
+//!   per pass of the board loop; the reset cause from `RCC_CSR` (read, then cleared) goes in `Boot`;
+//! - the warm-start record (`subnav_firmware::estimator::warm`) in the 4 KiB backup SRAM
+//!   (0x4002_4000), which keeps its contents through every reset while VDD is up (no backup
+//!   regulator needed for that): after a watchdog, brown-out or software reset the head starts
+//!   from it. Built, not yet run on a board (the warm restart is tested on the QEMU board).
 //!
 //! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
 //! scheduled by the tick, a blocking HAL keeps the board file small, and it builds in a fraction
@@ -38,6 +42,7 @@ use stm32f4xx_hal::{
     spi::{Mode, Phase, Polarity},
     watchdog::IndependentWatchdog,
 };
+use subnav_firmware::estimator::warm::WARM_RECORD_BYTES;
 use subnav_firmware::hal_bus::{HalI2c, HalSpi};
 use subnav_firmware::head_suite::{HeadSuite, NoDvl};
 use subnav_firmware::time::TickClock;
@@ -122,12 +127,24 @@ impl<TX: embedded_hal_nb::serial::Write<u8>> TelemetrySink for UartSink<TX> {
     }
 }
 
+/// The backup SRAM (clock on, write protection of the backup domain off), as the warm-start
+/// record's memory. Taken once, at boot.
+fn backup_sram(rcc: &pac::RCC, pwr: &pac::PWR) -> &'static mut [u8; WARM_RECORD_BYTES] {
+    rcc.apb1enr().modify(|_, w| w.pwren().set_bit());
+    pwr.cr().modify(|_, w| w.dbp().set_bit());
+    rcc.ahb1enr().modify(|_, w| w.bkpsramen().set_bit());
+    // SAFETY: the backup SRAM (RM0090 2.3: 0x4002_4000, 4 KiB), clocked and writable above,
+    // used by nothing else; taken once at boot, so this is the only reference.
+    unsafe { &mut *(0x4002_4000 as *mut [u8; WARM_RECORD_BYTES]) }
+}
+
 #[entry]
 fn main() -> ! {
     let (Some(dp), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
         defmt::panic!("peripherals taken twice");
     };
     let reset_cause = take_reset_cause(&dp.RCC);
+    let warm = backup_sram(&dp.RCC, &dp.PWR);
     let mut watchdog = IndependentWatchdog::new(dp.IWDG);
     watchdog.start(WATCHDOG_PERIOD_MS.millis());
     let mut rcc = dp.RCC.freeze(Config::hse(HSE_HZ.Hz()).sysclk(CORE_HZ.Hz()));
@@ -157,6 +174,11 @@ fn main() -> ! {
     app.set_reset_cause(reset_cause);
     defmt::info!("board stm32f405, reset cause {=?}", reset_cause);
     app.boot(clock.now_us(), &mut sink);
+    // The IWDG resets at most a period after the last feed; the reset and this boot add little.
+    let reset_gap_max_s = 2.0 * WATCHDOG_PERIOD_MS as f32 * 1e-3;
+    if let Err(e) = app.warm_start_at_boot(warm.as_slice(), reset_gap_max_s) {
+        defmt::info!("no warm start ({=?}): aligning", e);
+    }
 
     // Sensors.
     let spi = dp.SPI1.spi(
@@ -213,6 +235,7 @@ fn main() -> ! {
         // Sensors on the 1 ms grid (catching up without bursts after a long iteration).
         if wake_us >= next_tick_us {
             app.sensor_tick(wake_us, &mut suite, &mut sink);
+            app.service_warm_record(wake_us, warm.as_mut_slice());
             next_tick_us = (next_tick_us + 1000).max(wake_us.saturating_sub(wake_us % 1000));
         }
         if wake_us >= next_stack_report_us {
@@ -223,6 +246,8 @@ fn main() -> ! {
         if app.poll(wake_us, &mut sink) == BoardRequest::Reboot {
             cortex_m::peripheral::SCB::sys_reset();
         }
+        // The record's writes are done before the loop can stop (the next reset reads them).
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
         watchdog.feed();
         let done_us = clock.now_us();
         busy_us += done_us.saturating_sub(wake_us);

@@ -16,12 +16,16 @@
 //! `run_ms=N` exits successfully after N ms of firmware time; `panic_at_ms=N` panics on purpose
 //! (self-test of the panic path: the run must fail); `hang_at_ms=N` stops the board loop at N ms
 //! after a power-on (self-test of the watchdog: the head must reset and boot again, reporting
-//! `ResetCause::Watchdog`); `bus_req=PATH bus_resp=PATH` are the bridge's pipes (without them
+//! `ResetCause::Watchdog`); `warm=0` ignores the warm-start record after a reset (the cold
+//! restart, for comparison); `bus_req=PATH bus_resp=PATH` are the bridge's pipes (without them
 //! the board runs without sensors).
 //!
 //! Watchdog (`cmsdk_watchdog.rs`): fed once per pass of the board loop; a loop stopped for
 //! `WATCHDOG_PERIOD_MS` raises its NMI (the cause is marked for the next boot), twice that
 //! resets the machine.
+//!
+//! Warm restart (`warm_ram.rs`): the running head keeps its warm-start record in RAM that
+//! survives a reset; after a watchdog or software reset it starts from it, not from the origin.
 #![no_std]
 #![no_main]
 
@@ -59,6 +63,7 @@ use subnav_wire::{Board, Command, ConfigItem, Downlink, ResetCause};
 mod cmsdk_uart;
 mod cmsdk_watchdog;
 mod semihost_pipe;
+mod warm_ram;
 use cmsdk_uart::Uart;
 use cmsdk_watchdog::Watchdog;
 use semihost_pipe::SemihostPipe;
@@ -110,6 +115,8 @@ struct RunOptions {
     run_ms: Option<u64>,
     panic_at_ms: Option<u64>,
     hang_at_ms: Option<u64>,
+    /// `warm=0`: align cold after a reset (default: warm start from the kept record).
+    warm: bool,
     /// Paths of the bridge pipes (NUL-terminated copies), if given.
     bus_req: Option<([u8; 200], usize)>,
     bus_resp: Option<([u8; 200], usize)>,
@@ -146,6 +153,7 @@ fn run_options() -> RunOptions {
         run_ms: None,
         panic_at_ms: None,
         hang_at_ms: None,
+        warm: true,
         bus_req: None,
         bus_resp: None,
         utc_unix_us: None,
@@ -169,6 +177,8 @@ fn run_options() -> RunOptions {
             opts.panic_at_ms = parse_u64(v);
         } else if let Some(v) = word.strip_prefix(b"hang_at_ms=") {
             opts.hang_at_ms = parse_u64(v);
+        } else if let Some(v) = word.strip_prefix(b"warm=") {
+            opts.warm = v != b"0";
         } else if let Some(v) = word.strip_prefix(b"bus_req=") {
             opts.bus_req = path_arg(v);
         } else if let Some(v) = word.strip_prefix(b"bus_resp=") {
@@ -223,6 +233,15 @@ fn main() -> ! {
         &mut no_store
     };
     app.boot_with_store(0, store, &mut uart);
+    // After a watchdog reset the head stopped at most two watchdog periods before this boot.
+    let warm = warm_ram::take();
+    let reset_gap_max_s = 2.0 * WATCHDOG_PERIOD_MS as f32 * 1e-3;
+    if !opts.warm {
+        warm.fill(0);
+    }
+    if let Err(e) = app.warm_start_at_boot(warm.as_slice(), reset_gap_max_s) {
+        defmt::info!("no warm start ({=?}): aligning", e);
+    }
     // Started after the store's boot: reformatting a damaged store erases sector after sector
     // (seconds of flash time, bounded by the chip's size), longer than the watchdog's period.
     let mut watchdog = Watchdog::start(WATCHDOG_PERIOD_MS);
@@ -285,6 +304,7 @@ fn main() -> ! {
                 app.sensor_tick(t_us, s, &mut uart);
             }
             app.service_store(t_us, store, &mut uart);
+            app.service_warm_record(t_us, warm.as_mut_slice());
             if app.poll(t_us, &mut uart) == BoardRequest::Reboot {
                 defmt::info!("reboot requested");
                 cmsdk_watchdog::mark_next_reset(ResetCause::Software);
@@ -310,6 +330,8 @@ fn main() -> ! {
                 }
             }
         }
+        // The record's writes are done before the loop can stop (the next reset reads them).
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
         watchdog.feed();
         let done_us = clock.now_us();
         busy_us += done_us.saturating_sub(wake_us);
