@@ -232,6 +232,12 @@ struct Align {
 }
 
 impl Align {
+    /// The mean specific force so far (body FRD, m/s^2).
+    fn mean_accel(&self) -> [f32; 3] {
+        let n = self.n.max(1) as f32;
+        [0, 1, 2].map(|k| self.first_accel[k] + self.sum_accel[k] / n)
+    }
+
     /// Per-axis mean and sample variance (mean over the axes) of `sum`, `sum_sq` over `n`.
     fn mean_var(n: u32, sum: &[f32; 3], sum_sq: &[f32; 3]) -> ([f32; 3], f32) {
         let nf = n.max(1) as f32;

@@ -300,8 +300,7 @@ impl Estimator {
         if self.align.n == 0 || (now_us.saturating_sub(start) as f32) * 1e-6 < WARM_LEVEL_S {
             return Err(WarmStartError::NotYet);
         }
-        let n = self.align.n as f32;
-        let (roll, pitch) = head::level_from_accel(self.align.sum_accel.map(|v| v / n));
+        let (roll, pitch) = head::level_from_accel(self.align.mean_accel());
 
         let age_s = (rec.written_us - rec.t_us) as f32 * 1e-6;
         let dt_max = age_s + gap_s;
