@@ -55,6 +55,12 @@ const DVL_RESET_MIN_REFUSED: u32 = 10;
 /// Attitude error added to the filter's own when the DVL's velocity is turned into NED at a
 /// velocity reset (the filter's attitude may be off too when its velocity is).
 const DVL_RESET_ATTITUDE_SIGMA_RAD: f32 = 0.05;
+/// Position fixes refused in a row, over at least `POSITION_TIMEOUT_S`, with no DVL fused in
+/// the last `DVL_HOLDS_POSITION_US`, reset the position to the latest fix whether or not the
+/// refused fixes agree (they cannot, on a vehicle whose filter drifts away between them).
+const POSITION_TIMEOUT_FIXES: u32 = 2;
+const POSITION_TIMEOUT_S: f32 = 9.0;
+const DVL_HOLDS_POSITION_US: u64 = 5_000_000;
 /// Minimum mean resultant length of a consistent set of angles: 0.98 is a circular standard
 /// deviation of 11.5 deg (`sqrt(-2 ln R)`), twice the worst compass RMSE measured in the
 /// simulated dives (6.3 deg).
@@ -271,6 +277,12 @@ pub struct Estimator {
     refused_positions: PositionRun,
     /// Position resets done (the same for position fixes).
     pub position_resets: u32,
+    /// The current run of gate-refused position fixes: the time of validity of its first fix
+    /// (for the timeout reset, which does not need them to agree), and of the last DVL
+    /// velocity fused (a working DVL holds the position: no timeout reset then).
+    position_refused_since_us: Option<u64>,
+    position_refused_run: u32,
+    last_dvl_fused_us: Option<u64>,
     /// Low-passed specific force for the compass tilt (body FRD).
     accel_lp: [f32; 3],
     accel_seen: bool,
@@ -329,6 +341,9 @@ impl Estimator {
             heading_resets: 0,
             refused_positions: PositionRun::default(),
             position_resets: 0,
+            position_refused_since_us: None,
+            position_refused_run: 0,
+            last_dvl_fused_us: None,
             accel_lp: [0.0; 3],
             accel_seen: false,
             last_depth_m: None,
@@ -393,6 +408,9 @@ impl Estimator {
         self.heading_resets = 0;
         self.refused_positions = PositionRun::default();
         self.position_resets = 0;
+        self.position_refused_since_us = None;
+        self.position_refused_run = 0;
+        self.last_dvl_fused_us = None;
         self.accel_lp = [0.0; 3];
         self.accel_seen = false;
         self.last_depth_m = None;
@@ -405,6 +423,12 @@ impl Estimator {
         self.wave.reset();
         self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
         self.last_imu_us = None;
+    }
+
+    /// The IMU process-noise scale the filter uses (variance ratio against the tuning; 1 before
+    /// the filter runs). See `subnav_core::ukf::adapt::NisQScale`.
+    pub fn imu_q_scale(&self) -> f32 {
+        self.nav.as_ref().filter(|_| self.running).map_or(1.0, |n| n.imu_q_scale())
     }
 
     pub fn mode(&self) -> NavMode {
@@ -717,10 +741,42 @@ impl Estimator {
         let rep = nav.update_position(t_us, pos_ned_m, cov_ned_m2)?;
         if rep.accepted {
             self.refused_positions = PositionRun::default();
+            self.position_refused_since_us = None;
+            self.position_refused_run = 0;
             return Ok(());
         }
         let Some(prior) = prior else { return Ok(()) };
         let innovation = [pos_ned_m[0] - prior.x, pos_ned_m[1] - prior.y, pos_ned_m[2] - prior.z];
+        let since = *self.position_refused_since_us.get_or_insert(t_us);
+        self.position_refused_run = self.position_refused_run.saturating_add(1);
+        let refused_s = t_us.saturating_sub(since) as f32 * 1e-6;
+        let dvl_holds = self.last_dvl_fused_us.is_some_and(|t| nav.t_us().saturating_sub(t) < DVL_HOLDS_POSITION_US);
+        if !dvl_holds && self.position_refused_run >= POSITION_TIMEOUT_FIXES && refused_s >= POSITION_TIMEOUT_S {
+            // Nothing else holds the position and the fixes have been refused for longer than a
+            // run of outliers lasts: the filter is lost (PX4's reset on a timeout of refused
+            // fixes). The position goes to the fix; the velocity error that walked it away
+            // (the innovation over the run's span) is added to the velocity's variance.
+            let now = nav.nominal().pos_ned_m;
+            let var = [cov_ned_m2[0], cov_ned_m2[3], cov_ned_m2[5]];
+            let span_s = refused_s.max(1.0);
+            let vel = nav.nominal().vel_ned_mps;
+            let sv = nav.solution().sigma_vel_mps;
+            let var_vel = [0, 1, 2].map(|k| sv[k] * sv[k] + (innovation[k] / span_s) * (innovation[k] / span_s));
+            let fix_now = [now.x + innovation[0], now.y + innovation[1], now.z + innovation[2]];
+            if nav.reset_position(fix_now, var).is_ok() {
+                self.position_resets = self.position_resets.wrapping_add(1);
+                let _ = nav.reset_velocity(vel.into(), var_vel);
+                // The run measured how far the filter's process noise is from the truth's (its
+                // NIS against M): the IMU noise scale takes that ratio at once (covariance
+                // matching in one step, bounded), instead of 1.6x a fix.
+                let ratio = (rep.nis / 3.0).clamp(1.0, 100.0);
+                nav.seed_imu_q_scale(nav.imu_q_scale() * ratio);
+            }
+            self.refused_positions = PositionRun::default();
+            self.position_refused_since_us = None;
+            self.position_refused_run = 0;
+            return Ok(());
+        }
         self.refused_positions.push(innovation, [cov_ned_m2[0], cov_ned_m2[3], cov_ned_m2[5]]);
         if let Some((mean, var)) = self.refused_positions.consensus(RESET_POSITION_FIXES) {
             let now = nav.nominal().pos_ned_m;
@@ -742,7 +798,7 @@ impl Estimator {
     /// as faults; water-track velocities are recorded but not fused: they are relative to a
     /// moving water column). Before the alignment ends: ignored.
     pub fn on_dvl(&mut self, s: &DvlSample) -> Result<(), NavError> {
-        if !s.valid || s.tracking != DvlTracking::Bottom {
+        if !dvl_usable(s) {
             return Ok(());
         }
         let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return Ok(()) };
@@ -756,6 +812,7 @@ impl Estimator {
         let rep = nav.update_dvl(&m, &self.dvl_mounting)?;
         if rep.accepted {
             self.dvl_fused = self.dvl_fused.saturating_add(1);
+            self.last_dvl_fused_us = Some(s.t_us);
             self.dvl_refused_since_us = None;
             self.dvl_refused_run = 0;
             return Ok(());
@@ -829,6 +886,18 @@ impl Estimator {
         }
     }
 }
+
+/// The DVL's acceptance rule, the one place it is written: a valid bottom-track report with its
+/// altitude inside the DVL's bottom-lock range (Water Linked DVL-A50: 0.05-50 m; an altitude
+/// outside it, or negative = unknown, means the lock is on something else or the report is
+/// bad). Water-track velocities are relative to a moving water column: not fused.
+pub fn dvl_usable(s: &DvlSample) -> bool {
+    s.valid && s.tracking == DvlTracking::Bottom && (DVL_MIN_ALTITUDE_M..=DVL_MAX_ALTITUDE_M).contains(&s.altitude_m)
+}
+
+/// The DVL's bottom-lock altitude range, m (Water Linked DVL-A50).
+pub const DVL_MIN_ALTITUDE_M: f32 = 0.05;
+pub const DVL_MAX_ALTITUDE_M: f32 = 50.0;
 
 /// The filter's storage, built once at construction (not inlined: its frame is transient, at
 /// boot). `None` only for an invalid configuration (then the estimator never leaves alignment
@@ -1029,7 +1098,9 @@ mod tests {
                 break;
             }
         }
-        assert!(reset_at.is_some_and(|n| (5..=8).contains(&n)), "reset at lost fix {reset_at:?}");
+        // Without a DVL the position aid's timeout (refused fixes over `POSITION_TIMEOUT_S`,
+        // agreeing or not) may come first: the run began with the disagreeing fixes.
+        assert!(reset_at.is_some_and(|n| (4..=8).contains(&n)), "reset at lost fix {reset_at:?}");
         assert_eq!(e.position_resets, 1);
         assert_eq!((e.health(0).position_resets, e.health(0).heading_resets), (1, 0), "reported in Health");
         let p = pos(&e);
@@ -1098,6 +1169,32 @@ mod tests {
         run(&mut e, 20.0, 30.0, |t| Some(deg(40.0 + 90.0 + 180.0 * libm::sinf(13.0 * t))));
         assert_eq!(e.heading_resets, 0);
         assert!((yaw_deg(&e) - 40.0).abs() < 2.0, "{}", yaw_deg(&e));
+    }
+
+    /// A DVL report with its altitude outside the bottom-lock range (or unknown) is not fused,
+    /// however plausible its velocity; inside the range the same report is.
+    #[test]
+    fn a_dvl_report_with_an_out_of_range_altitude_is_not_fused() {
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 3.0, |_| Some(deg(40.0)));
+        let dvl = |t_s: f32, altitude_m: f32, v: f32| DvlSample {
+            t_us: (t_s * 1e6) as u64,
+            rx_us: (t_s * 1e6) as u64,
+            tracking: DvlTracking::Bottom,
+            valid: true,
+            vel_dvl_mps: [v, 0.0, 0.0],
+            fom_mps: 0.01,
+            altitude_m,
+        };
+        for (k, alt) in [80.0, 50.5, 0.01, -1.0, f32::NAN].into_iter().enumerate() {
+            run(&mut e, 3.0 + k as f32 * 0.2, 3.2 + k as f32 * 0.2, |_| Some(deg(40.0)));
+            e.on_dvl(&dvl(3.2 + k as f32 * 0.2, alt, 0.5)).unwrap();
+        }
+        assert_eq!(e.dvl_fused, 0, "no out-of-range report fused");
+        assert!(e.solution(0).vel_ned_mps.iter().all(|v| v.abs() < 0.05), "{:?}", e.solution(0).vel_ned_mps);
+        run(&mut e, 4.0, 4.2, |_| Some(deg(40.0)));
+        e.on_dvl(&dvl(4.2, 5.0, 0.005)).unwrap();
+        assert_eq!(e.dvl_fused, 1, "in range: fused");
     }
 
     #[test]

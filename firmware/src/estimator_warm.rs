@@ -361,6 +361,79 @@ impl Estimator {
     }
 }
 
+/// A start in motion from a solution given from outside (the host's last solution, a GNSS
+/// fix pair on the surface, a surveyed launch): position, velocity and yaw with their 1-sigmas;
+/// roll and pitch come from the mean specific force since boot, the gyro bias from the
+/// configuration's initial sigma.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MovingStart {
+    pub pos_ned_m: [f32; 3],
+    pub vel_ned_mps: [f32; 3],
+    pub yaw_rad: f32,
+    pub sigma_pos_m: [f32; 3],
+    pub sigma_vel_mps: [f32; 3],
+    pub sigma_yaw_rad: f32,
+    /// 1-sigma of the levelling in motion (the vehicle's own accelerations over the levelling
+    /// window tilt the mean specific force).
+    pub sigma_tilt_rad: f32,
+}
+
+impl MovingStart {
+    fn is_valid(&self) -> bool {
+        let finite = self.pos_ned_m.iter().chain(&self.vel_ned_mps).chain(&self.sigma_pos_m).chain(&self.sigma_vel_mps).all(|v| v.is_finite())
+            && self.yaw_rad.is_finite();
+        let pos = |v: f32| v.is_finite() && v > 0.0;
+        finite
+            && self.sigma_pos_m.iter().chain(&self.sigma_vel_mps).all(|v| *v > 0.0)
+            && pos(self.sigma_yaw_rad)
+            && pos(self.sigma_tilt_rad)
+    }
+}
+
+impl Estimator {
+    /// Start the filter in motion from `s` (see [`MovingStart`]) instead of aligning at rest.
+    /// Needs [`WARM_LEVEL_S`] of IMU samples since boot (else `NotYet`: call again); refused
+    /// while running or with a non-finite or non-positive-sigma `s` (nothing changes).
+    #[inline(never)]
+    pub fn start_moving(&mut self, s: &MovingStart) -> Result<(), WarmStartError> {
+        if self.running {
+            return Err(WarmStartError::Running);
+        }
+        if !s.is_valid() {
+            return Err(WarmStartError::Invalid);
+        }
+        let (Some(start), Some(now_us)) = (self.align.start_us, self.last_imu_us) else { return Err(WarmStartError::NotYet) };
+        if self.align.n == 0 || (now_us.saturating_sub(start) as f32) * 1e-6 < WARM_LEVEL_S {
+            return Err(WarmStartError::NotYet);
+        }
+        let (roll, pitch) = head::level_from_accel(self.align.mean_accel());
+        let mut cfg = self.cfg;
+        cfg.init_sigma_att_rad = [s.sigma_tilt_rad, s.sigma_tilt_rad, s.sigma_yaw_rad.min(YAW_UNKNOWN_SIGMA_RAD)];
+        let init = NavInit {
+            t_us: now_us,
+            att_nb: head::attitude(roll, pitch, s.yaw_rad),
+            vel_ned_mps: Vector3::from(s.vel_ned_mps),
+            pos_ned_m: Vector3::from(s.pos_ned_m),
+        };
+        let Some(nav) = self.nav.as_mut() else { return Err(WarmStartError::Filter(NavError::BadConfig)) };
+        nav.reinit(cfg, init).map_err(WarmStartError::Filter)?;
+        // Diagonal with positive entries: symmetric PD.
+        let mut p = *nav.covariance();
+        for k in 0..3 {
+            if let Some(x) = p.get_mut((POS + k, POS + k)) {
+                *x = s.sigma_pos_m[k] * s.sigma_pos_m[k];
+            }
+            if let Some(x) = p.get_mut((VEL + k, VEL + k)) {
+                *x = s.sigma_vel_mps[k] * s.sigma_vel_mps[k];
+            }
+        }
+        nav.set_covariance(p).map_err(WarmStartError::Filter)?;
+        self.gyro_bias_align = [0.0; 3];
+        self.running = true;
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -327,6 +327,10 @@ pub struct NavFilter<const N: usize, const S: usize> {
     /// The IMU process-noise scale (`NavConfig::imu_q_adapt`) and the scale the UKF's `Q` holds.
     pub(crate) q_scale: NisQScale<f32>,
     pub(crate) q_scale_applied: f32,
+    /// Time of validity of the last accepted velocity update and of the last position fix seen
+    /// (for the IMU noise scale's evidence).
+    pub(crate) last_vel_accepted_us: Option<u64>,
+    pub(crate) last_pos_obs_us: Option<u64>,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -367,6 +371,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             delay_rejects: 0,
             q_scale: NisQScale::default(),
             q_scale_applied: 1.0,
+            last_vel_accepted_us: None,
+            last_pos_obs_us: None,
         })
     }
 
@@ -400,6 +406,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.delay_rejects = 0;
         self.q_scale = NisQScale::default();
         self.q_scale_applied = 1.0;
+        self.last_vel_accepted_us = None;
+        self.last_pos_obs_us = None;
         Ok(())
     }
 
@@ -748,8 +756,21 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if let Some(n) = self.nis.get_mut(kind) {
             *n = rep.nis;
         }
-        if kind == KIND_VELOCITY || kind == KIND_POSITION {
-            self.adapt_imu_q(rep.nis, 3);
+        // The velocity aid's NIS drives the IMU noise scale; position fixes only while no
+        // velocity aid works (with one, their innovations measure the slow drift, not the IMU),
+        // each counting for the seconds since the last one (at most 10).
+        if kind == KIND_VELOCITY {
+            self.adapt_imu_q(rep.nis, 3, 1.0);
+            if rep.accepted {
+                self.last_vel_accepted_us = Some(t_us);
+            }
+        } else if kind == KIND_POSITION {
+            let vel_aided = self.last_vel_accepted_us.is_some_and(|t| self.t_us.saturating_sub(t) < 5_000_000);
+            let w = 1.0;
+            self.last_pos_obs_us = Some(t_us);
+            if !vel_aided {
+                self.adapt_imu_q(rep.nis, 3, w);
+            }
         }
         if rep.accepted && delayed {
             self.delayed_updates = self.delayed_updates.saturating_add(1);
@@ -765,12 +786,12 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Feed one velocity or position NIS (accepted or refused) to the IMU process-noise scale
     /// and give the UKF the new `Q` when the scale moved by more than 10 % since the last time
     /// (not with the Sage-Husa `Q` recursion on: that one owns `Q`).
-    fn adapt_imu_q(&mut self, nis: f32, m: usize) {
+    fn adapt_imu_q(&mut self, nis: f32, m: usize, w: f32) {
         let cfg = self.cfg.imu_q_adapt;
         if !cfg.on || self.cfg.ukf.adapt.q_cov {
             return;
         }
-        self.q_scale.observe(&cfg, nis, m);
+        self.q_scale.observe_weighted(&cfg, nis, m, w);
         let s = self.q_scale.scale();
         let ratio = s / self.q_scale_applied;
         if (ratio > 1.1 || ratio < 1.0 / 1.1) && self.ukf.set_q(Self::scaled_q(&self.cfg, s)).is_ok() {

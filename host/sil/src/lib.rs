@@ -6,6 +6,7 @@ pub mod chips;
 pub mod dive;
 pub mod filter;
 pub mod head;
+pub mod kitti;
 pub mod manufacturing;
 pub mod map_loop;
 pub mod replay;
