@@ -821,24 +821,33 @@ impl Estimator {
         self.dvl_refused_run = self.dvl_refused_run.saturating_add(1);
         let refused_s = s.t_us.saturating_sub(since) as f32 * 1e-6;
         if refused_s >= DVL_RESET_AFTER_S && self.dvl_refused_run >= DVL_RESET_MIN_REFUSED {
-            // The DVL has been refused for longer than a velocity error can honestly explain
-            // with it working (its own faults come as single reports or as no lock, not as a
-            // consistent velocity for seconds): the filter's velocity is wrong. Take the DVL's,
-            // in NED through the filter's attitude, with its noise plus the attitude's share.
-            let sigma = head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps);
-            let v_dvl = nalgebra::Vector3::from(m.vel_dvl_mps);
-            let w = nalgebra::Vector3::from(self.last_gyro_radps) - nav.nominal().gyro_bias_radps;
-            let v_body = self.dvl_mounting.rot_body_from_dvl * v_dvl - w.cross(&self.dvl_mounting.lever_arm_body_m);
-            let v_ned = nav.nominal().att_nb * v_body;
-            let att_var = nav.covariance().fixed_view::<3, 3>(subnav_core::nav::state::ATT, subnav_core::nav::state::ATT).trace();
-            let var = sigma * sigma + v_ned.norm_squared() * (att_var + DVL_RESET_ATTITUDE_SIGMA_RAD * DVL_RESET_ATTITUDE_SIGMA_RAD);
-            if nav.reset_velocity(v_ned.into(), [var; 3]).is_ok() {
-                self.velocity_resets = self.velocity_resets.wrapping_add(1);
-            }
-            self.dvl_refused_since_us = None;
-            self.dvl_refused_run = 0;
+            self.reset_velocity_to_dvl(s, &m);
         }
         Ok(())
+    }
+
+    /// The DVL aid's timeout reset (see `on_dvl`). Out of line and cold: its temporaries stay
+    /// out of the DVL path's frame (the M4F's stack).
+    #[inline(never)]
+    #[cold]
+    fn reset_velocity_to_dvl(&mut self, s: &DvlSample, m: &DvlMeasurement) {
+        let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return };
+        // The DVL has been refused for longer than a velocity error can honestly explain
+        // with it working (its own faults come as single reports or as no lock, not as a
+        // consistent velocity for seconds): the filter's velocity is wrong. Take the DVL's,
+        // in NED through the filter's attitude, with its noise plus the attitude's share.
+        let sigma = head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps);
+        let v_dvl = nalgebra::Vector3::from(m.vel_dvl_mps);
+        let w = nalgebra::Vector3::from(self.last_gyro_radps) - nav.nominal().gyro_bias_radps;
+        let v_body = self.dvl_mounting.rot_body_from_dvl * v_dvl - w.cross(&self.dvl_mounting.lever_arm_body_m);
+        let v_ned = nav.nominal().att_nb * v_body;
+        let att_var = nav.covariance().fixed_view::<3, 3>(subnav_core::nav::state::ATT, subnav_core::nav::state::ATT).trace();
+        let var = sigma * sigma + v_ned.norm_squared() * (att_var + DVL_RESET_ATTITUDE_SIGMA_RAD * DVL_RESET_ATTITUDE_SIGMA_RAD);
+        if nav.reset_velocity(v_ned.into(), [var; 3]).is_ok() {
+            self.velocity_resets = self.velocity_resets.wrapping_add(1);
+        }
+        self.dvl_refused_since_us = None;
+        self.dvl_refused_run = 0;
     }
 
     pub fn solution(&self, t_us: u64) -> NavSolution {

@@ -786,6 +786,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Feed one velocity or position NIS (accepted or refused) to the IMU process-noise scale
     /// and give the UKF the new `Q` when the scale moved by more than 10 % since the last time
     /// (not with the Sage-Husa `Q` recursion on: that one owns `Q`).
+    #[inline(never)] // its candidate Q (900 B) stays out of the update path's frame (M4F stack)
     fn adapt_imu_q(&mut self, nis: f32, m: usize, w: f32) {
         let cfg = self.cfg.imu_q_adapt;
         if !cfg.on || self.cfg.ukf.adapt.q_cov {
@@ -794,7 +795,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.q_scale.observe_weighted(&cfg, nis, m, w);
         let s = self.q_scale.scale();
         let ratio = s / self.q_scale_applied;
-        if (ratio > 1.1 || ratio < 1.0 / 1.1) && self.ukf.set_q(Self::scaled_q(&self.cfg, s)).is_ok() {
+        if (ratio > 1.1 || ratio < 1.0 / 1.1) && self.apply_imu_q_scale(s) {
             self.q_scale_applied = s;
         }
     }
@@ -802,6 +803,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// Start the IMU process-noise scale at `scale` (e.g. the IMU's noise measured at rest
     /// against the configuration), within the configured bounds; no effect with the
     /// adaptation off.
+    #[inline(never)]
+    #[cold]
     pub fn seed_imu_q_scale(&mut self, scale: f32) {
         let cfg = self.cfg.imu_q_adapt;
         if !cfg.on || self.cfg.ukf.adapt.q_cov || !scale.is_finite() {
@@ -809,9 +812,17 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         }
         self.q_scale.seed(&cfg, scale);
         let s = self.q_scale.scale();
-        if self.ukf.set_q(Self::scaled_q(&self.cfg, s)).is_ok() {
+        if self.apply_imu_q_scale(s) {
             self.q_scale_applied = s;
         }
+    }
+
+    /// Set the UKF's `Q` diagonal for the IMU's attitude and velocity random walks scaled by
+    /// `s` (the entries `scaled_q` gives, without its `N x N` temporary).
+    fn apply_imu_q_scale(&mut self, s: f32) -> bool {
+        let t = self.cfg.cov_dt_s();
+        let (att, vel) = (self.cfg.gyro_arw * self.cfg.gyro_arw * t * s, self.cfg.accel_vrw * self.cfg.accel_vrw * t * s);
+        (0..3).all(|k| self.ukf.set_q_diag(ATT + k, att).is_ok() && self.ukf.set_q_diag(VEL + k, vel).is_ok())
     }
 
     /// The IMU process-noise scale in use (variance ratio against the configuration, see

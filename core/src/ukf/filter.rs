@@ -254,6 +254,17 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.commit_p(p)
     }
 
+    /// Replace one diagonal entry of the process noise (`v` finite and >= 0; else refused,
+    /// counted, nothing changes). No `N x N` temporary: for a scaled `Q` on the sensor head.
+    pub fn set_q_diag(&mut self, i: usize, v: T) -> Result<(), UkfError> {
+        if !(v.is_finite() && v >= T::zero()) || i >= N {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteInput);
+        }
+        self.q[(i, i)] = v;
+        Ok(())
+    }
+
     /// Replace the process noise.
     pub fn set_q(&mut self, q: SMatrix<T, N, N>) -> Result<(), UkfError> {
         if !all_finite(&q) {
