@@ -1279,6 +1279,7 @@ mod tests {
                 vel_dvl_mps: [0.0; 3],
                 fom_mps: 0.005,
                 altitude_m: 8.0,
+                covariance_m2ps2: None,
             }))
         }
     }

@@ -26,7 +26,9 @@ use subnav_core::ephemeris::{Observer, delta_t_estimate_s};
 use subnav_core::head;
 use subnav_core::nav::dvl::DvlMeasurement;
 use subnav_core::nav::{NavConfig, NavError, NavFilter15, NavInit};
-use subnav_wire::{CompassReport, DvlSample, DvlTracking, FilterHealth, ImuSample, NavMode, NavSolution};
+use subnav_core::nav::{KIND_DEPTH, KIND_HEADING, KIND_VELOCITY};
+use subnav_core::ukf::UpdateReport;
+use subnav_wire::{AidSource, AidStatuses, CompassReport, DvlSample, DvlTracking, FilterHealth, ImuSample, NavMode, NavSolution};
 
 /// Warm start after a reset while moving (the board's warm-start record).
 #[path = "estimator_warm.rs"]
@@ -298,6 +300,8 @@ pub struct Estimator {
     last_gyro_radps: [f32; 3],
     /// DVL velocities fused (accepted by the gate) since boot.
     pub dvl_fused: u32,
+    /// Every aid source's status (`Health::aid`), kept by its fuse step.
+    aid: AidStatuses,
     /// The current run of gate-refused DVL velocities: the filter time of its first refusal and
     /// its length.
     dvl_refused_since_us: Option<u64>,
@@ -351,6 +355,7 @@ impl Estimator {
             input_rejects: 0,
             last_gyro_radps: [0.0; 3],
             dvl_fused: 0,
+            aid: AidStatuses::default(),
             dvl_refused_since_us: None,
             dvl_refused_run: 0,
             velocity_resets: 0,
@@ -420,6 +425,7 @@ impl Estimator {
         self.dvl_refused_since_us = None;
         self.dvl_refused_run = 0;
         self.velocity_resets = 0;
+        self.aid = AidStatuses::default();
         self.wave.reset();
         self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
         self.last_imu_us = None;
@@ -681,7 +687,12 @@ impl Estimator {
         if self.adaptive_r.on {
             sigma = libm::sqrtf(self.adaptive_r.filter_var_rad2(solver_var, model_var, n_corr).max(solver_var + measured));
         }
-        match nav.update_heading(t_us, heading_rad, Some(sigma)) {
+        let result = nav.update_heading(t_us, heading_rad, Some(sigma));
+        if let Ok(rep) = &result {
+            let (gate, var) = (nav.config().heading.gate, nav.r_diag()[KIND_HEADING]);
+            record(&mut self.aid, AidSource::Heading, t_us, rep, gate, var);
+        }
+        match result {
             Ok(rep) if rep.accepted => {
                 self.rejected_run = AngleRun::default();
                 if self.adaptive_r.on && p_yaw < self.adaptive_r.var_rad2 {
@@ -696,6 +707,7 @@ impl Estimator {
                     let yaw = nav.nominal().yaw_rad() + mean;
                     if nav.reset_heading(yaw, sigma).is_ok() {
                         self.heading_resets = self.heading_resets.wrapping_add(1);
+                        self.aid.heading.resets = self.aid.heading.resets.wrapping_add(1);
                         // The rejected run's innovations measured the wrong heading, not the compass.
                         self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
                     }
@@ -727,10 +739,11 @@ impl Estimator {
             return Err(NavError::NonFinite);
         }
         self.last_depth_m = Some(depth_m);
-        match self.nav.as_mut().filter(|_| self.running) {
-            Some(nav) => nav.update_depth(t_us, depth_m, None).map(|_| ()),
-            None => Ok(()),
-        }
+        let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return Ok(()) };
+        let rep = nav.update_depth(t_us, depth_m, None)?;
+        let (gate, var) = (nav.config().depth.gate, nav.r_diag()[KIND_DEPTH]);
+        record(&mut self.aid, AidSource::Depth, t_us, &rep, gate, var);
+        Ok(())
     }
 
     /// A position fix (NED, m, covariance upper triangle) valid at `t_us`; position
@@ -739,6 +752,8 @@ impl Estimator {
         let Some(nav) = self.nav.as_mut().filter(|_| self.running) else { return Err(NavError::BadTime) };
         let prior = nav.position_at(t_us);
         let rep = nav.update_position(t_us, pos_ned_m, cov_ned_m2)?;
+        let (gate, var) = (nav.config().position.gate, (cov_ned_m2[0] + cov_ned_m2[3] + cov_ned_m2[5]) / 3.0);
+        record(&mut self.aid, AidSource::Position, t_us, &rep, gate, var);
         if rep.accepted {
             self.refused_positions = PositionRun::default();
             self.position_refused_since_us = None;
@@ -765,6 +780,7 @@ impl Estimator {
             let fix_now = [now.x + innovation[0], now.y + innovation[1], now.z + innovation[2]];
             if nav.reset_position(fix_now, var).is_ok() {
                 self.position_resets = self.position_resets.wrapping_add(1);
+                self.aid.position.resets = self.aid.position.resets.wrapping_add(1);
                 let _ = nav.reset_velocity(vel.into(), var_vel);
                 // The run measured how far the filter's process noise is from the truth's (its
                 // NIS against M): the IMU noise scale takes that ratio at once (covariance
@@ -782,6 +798,7 @@ impl Estimator {
             let now = nav.nominal().pos_ned_m;
             if nav.reset_position([now.x + mean[0], now.y + mean[1], now.z + mean[2]], var).is_ok() {
                 self.position_resets = self.position_resets.wrapping_add(1);
+                self.aid.position.resets = self.aid.position.resets.wrapping_add(1);
             }
             self.refused_positions = PositionRun::default();
         } else if self.refused_positions.n >= RESET_POSITION_FIXES {
@@ -805,11 +822,13 @@ impl Estimator {
         let m = DvlMeasurement {
             t_us: s.t_us,
             vel_dvl_mps: s.vel_dvl_mps.map(|v| v / self.dvl_scale),
-            covariance_m2ps2: None,
+            covariance_m2ps2: s.covariance_m2ps2.map(|c| dvl_covariance(c, s.vel_dvl_mps)),
             fom_mps: Some(head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps)),
             gyro_radps: self.last_gyro_radps,
         };
         let rep = nav.update_dvl(&m, &self.dvl_mounting)?;
+        let (gate, var) = (nav.config().velocity.gate, dvl_noise_var(&m, nav.r_diag()[KIND_VELOCITY]));
+        record(&mut self.aid, AidSource::Dvl, s.t_us, &rep, gate, var);
         if rep.accepted {
             self.dvl_fused = self.dvl_fused.saturating_add(1);
             self.last_dvl_fused_us = Some(s.t_us);
@@ -845,6 +864,7 @@ impl Estimator {
         let var = sigma * sigma + v_ned.norm_squared() * (att_var + DVL_RESET_ATTITUDE_SIGMA_RAD * DVL_RESET_ATTITUDE_SIGMA_RAD);
         if nav.reset_velocity(v_ned.into(), [var; 3]).is_ok() {
             self.velocity_resets = self.velocity_resets.wrapping_add(1);
+            self.aid.dvl.resets = self.aid.dvl.resets.wrapping_add(1);
         }
         self.dvl_refused_since_us = None;
         self.dvl_refused_run = 0;
@@ -871,6 +891,7 @@ impl Estimator {
         match self.nav.as_ref().filter(|_| self.running) {
             Some(nav) => {
                 let mut h = nav.health();
+                h.aid = self.aid;
                 h.nonfinite_rejects = h.nonfinite_rejects.saturating_add(self.input_rejects);
                 h.heading_resets = self.heading_resets;
                 h.position_resets = self.position_resets;
@@ -878,10 +899,10 @@ impl Estimator {
             }
             None => FilterHealth {
                 t_us,
-                nis: [f32::NAN; 4],
+                aid: self.aid,
+                imu_q_scale: 1.0,
                 lambda: 1.0,
                 q_diag: [0.0; 5],
-                r_diag: [0.0; 4],
                 pd_repairs: 0,
                 cov_unrepairable: 0,
                 gate_rejects: 0,
@@ -893,6 +914,51 @@ impl Estimator {
                 cpu_load_permille: 0,
             },
         }
+    }
+}
+
+/// One aid source's fuse step into its status (`Health::aid`).
+fn record(aid: &mut AidStatuses, src: AidSource, t_us: u64, rep: &UpdateReport<f32>, gate: f32, noise_var: f32) {
+    let st = aid.get_mut(src);
+    st.t_us = t_us;
+    st.nis = rep.nis;
+    st.test_ratio = if gate.is_finite() && gate > 0.0 { rep.nis_gate / gate } else { 0.0 };
+    st.noise_var = noise_var;
+    st.fused = rep.accepted;
+    if rep.accepted {
+        st.fused_count = st.fused_count.wrapping_add(1);
+        st.last_fused_us = t_us;
+    } else {
+        st.refused_count = st.refused_count.wrapping_add(1);
+    }
+}
+
+/// The noise a DVL report gets when it sends its own covariance: that covariance, its diagonal
+/// floored at the head's DVL floor, plus the head's model error that no DVL reports (its
+/// residual scale and alignment, a fraction of the speed; `head::dvl_sigma_mps`). A non-finite
+/// or not positive definite covariance goes through as it is: the filter refuses it and counts
+/// it (`NavFilter::update_dvl`).
+fn dvl_covariance(c: [f32; 9], vel_dvl_mps: [f32; 3]) -> [f32; 9] {
+    let speed2: f32 = vel_dvl_mps.iter().map(|v| v * v).sum();
+    let model = head::DVL_SIGMA_SPEED_FRACTION * head::DVL_SIGMA_SPEED_FRACTION * speed2;
+    let floor = head::DVL_SIGMA_FLOOR_MPS * head::DVL_SIGMA_FLOOR_MPS;
+    let mut r = c;
+    for k in [0, 4, 8] {
+        // `f32::max` would turn a NaN into the floor: a broken covariance must stay broken.
+        if r[k].is_finite() {
+            r[k] = r[k].max(floor) + model;
+        }
+    }
+    r
+}
+
+/// The DVL noise variance for its status: the mean of its covariance's diagonal when it sent
+/// one, else its figure-of-merit sigma squared, else the filter's.
+fn dvl_noise_var(m: &DvlMeasurement, filter_var: f32) -> f32 {
+    match (m.covariance_m2ps2, m.fom_mps) {
+        (Some(c), _) => (c[0] + c[4] + c[8]) / 3.0,
+        (None, Some(f)) => f * f,
+        (None, None) => filter_var,
     }
 }
 
@@ -1137,7 +1203,7 @@ mod tests {
             }
             deg(40.0 + sigma_deg * sum * libm::sqrtf(3.0))
         };
-        let r_sigma_deg = |e: &Estimator| libm::sqrtf(e.health(0).r_diag[0]).to_degrees();
+        let r_sigma_deg = |e: &Estimator| libm::sqrtf(e.health(0).aid.heading.noise_var).to_degrees();
         let mut results = [(0.0f32, 0.0f32); 2];
         for (on, out) in [true, false].into_iter().zip(results.iter_mut()) {
             let mut e = Estimator::default();
@@ -1194,6 +1260,7 @@ mod tests {
             vel_dvl_mps: [v, 0.0, 0.0],
             fom_mps: 0.01,
             altitude_m,
+            covariance_m2ps2: None,
         };
         for (k, alt) in [80.0, 50.5, 0.01, -1.0, f32::NAN].into_iter().enumerate() {
             run(&mut e, 3.0 + k as f32 * 0.2, 3.2 + k as f32 * 0.2, |_| Some(deg(40.0)));
@@ -1204,6 +1271,86 @@ mod tests {
         run(&mut e, 4.0, 4.2, |_| Some(deg(40.0)));
         e.on_dvl(&dvl(4.2, 5.0, 0.005)).unwrap();
         assert_eq!(e.dvl_fused, 1, "in range: fused");
+    }
+
+    fn dvl_with_cov(t_s: f32, v: f32, cov: Option<[f32; 9]>) -> DvlSample {
+        DvlSample {
+            t_us: (t_s * 1e6) as u64,
+            rx_us: (t_s * 1e6) as u64,
+            tracking: DvlTracking::Bottom,
+            valid: true,
+            vel_dvl_mps: [v, 0.0, 0.0],
+            fom_mps: 0.01,
+            altitude_m: 5.0,
+            covariance_m2ps2: cov,
+        }
+    }
+
+    fn diag(var: f32) -> Option<[f32; 9]> {
+        Some([var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var])
+    }
+
+    /// The DVL's own covariance is the noise it is fused with (plus the head's model error);
+    /// without one, its figure of merit. Named in its status.
+    #[test]
+    fn a_dvl_report_is_fused_with_its_own_covariance() {
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 3.0, |_| Some(deg(40.0)));
+        e.on_dvl(&dvl_with_cov(3.0, 0.0, None)).unwrap();
+        let fom_var = e.health(0).aid.dvl.noise_var;
+        assert!((fom_var - 1e-4).abs() < 1e-6, "figure of merit 0.01 m/s: {fom_var}");
+        run(&mut e, 3.0, 3.2, |_| Some(deg(40.0)));
+        e.on_dvl(&dvl_with_cov(3.2, 0.0, diag(0.03 * 0.03))).unwrap();
+        let st = e.health(0).aid.dvl;
+        assert!((st.noise_var - 9e-4).abs() < 1e-6, "its own covariance: {}", st.noise_var);
+        assert!(st.fused && st.fused_count == 2 && st.refused_count == 0, "{st:?}");
+        assert!(st.test_ratio >= 0.0 && st.test_ratio < 1.0, "{st:?}");
+    }
+
+    /// A huge covariance says the report carries nothing: fused, and the velocity does not
+    /// move toward it; a NaN or not positive definite one is refused (counted), nothing changes.
+    #[test]
+    fn a_dvl_report_with_a_huge_or_broken_covariance_does_nothing() {
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 3.0, |_| Some(deg(40.0)));
+        e.on_dvl(&dvl_with_cov(3.0, 2.0, diag(1e6))).unwrap();
+        let v = e.solution(0).vel_ned_mps;
+        assert!(v.iter().all(|x| x.abs() < 0.01), "a 2 m/s report with a 1000 m/s sigma moved the velocity to {v:?}");
+        assert_eq!(e.health(0).aid.dvl.fused_count, 1);
+        run(&mut e, 3.0, 3.2, |_| Some(deg(40.0)));
+        let before = (e.solution(0), e.health(0).nonfinite_rejects);
+        let mut nan = diag(1e-4);
+        if let Some(c) = nan.as_mut() {
+            c[4] = f32::NAN;
+        }
+        let not_pd = Some([1e-4, 1.0, 0.0, 1.0, 1e-4, 0.0, 0.0, 0.0, 1e-4]);
+        for cov in [nan, not_pd] {
+            assert!(e.on_dvl(&dvl_with_cov(3.2, 0.5, cov)).is_err(), "{cov:?} refused");
+        }
+        assert_eq!(e.solution(0), before.0, "a refused report changes nothing");
+        assert_eq!(e.health(0).nonfinite_rejects, before.1 + 2, "and is counted");
+        assert_eq!(e.health(0).aid.dvl.fused_count, 1);
+    }
+
+    /// Every aid source has its status in `Health`, by name (a new `AidSource` does not compile
+    /// until `AidStatuses::get` has it), and each moves with its own sensor only.
+    #[test]
+    fn every_aid_source_reports_its_own_status() {
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 3.0, |_| Some(deg(40.0)));
+        e.on_dvl(&dvl_with_cov(3.0, 0.0, None)).unwrap();
+        e.on_position_fix(2_900_000, [0.0, 0.0, 10.0], [4.0, 0.0, 0.0, 4.0, 0.0, 1.0]).unwrap();
+        let h = e.health(0);
+        let names: heapless::Vec<&str, 8> = AidSource::ALL.iter().map(|s| s.name()).collect();
+        for (k, a) in names.iter().enumerate() {
+            assert!(!names[k + 1..].contains(a), "names are distinct: {names:?}");
+        }
+        for src in AidSource::ALL {
+            let st = h.aid.get(src);
+            assert!(st.fused_count > 0 && st.t_us > 0 && st.noise_var > 0.0 && st.nis.is_finite(), "{}: {st:?}", src.name());
+        }
+        assert_eq!((h.aid.dvl.fused_count, h.aid.position.fused_count), (1, 1));
+        assert!(h.aid.heading.fused_count > 10 && h.aid.depth.fused_count > 10);
     }
 
     #[test]

@@ -598,6 +598,7 @@ mod tests {
                     vel_dvl_mps: [vd.x, vd.y, vd.z],
                     fom_mps: 0.01,
                     altitude_m: 4.0,
+                    covariance_m2ps2: None,
                     valid: true,
                     tracking: DvlTracking::Bottom,
                 };

@@ -270,6 +270,7 @@ where
                     vel_dvl_mps: v.vel_dvl_mps,
                     fom_mps: v.fom_mps,
                     altitude_m: v.altitude_m.unwrap_or(-1.0),
+                    covariance_m2ps2: v.covariance_m2ps2,
                 }));
             }
         }

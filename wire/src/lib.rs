@@ -21,11 +21,11 @@ pub use records::*;
 use postcard::experimental::max_size::MaxSize;
 
 /// Bumped on every incompatible change of the messages or framing.
-pub const PROTOCOL_VERSION: u16 = 6;
+pub const PROTOCOL_VERSION: u16 = 7;
 
 /// FNV-1a 64 of the postcard-schema description of [`Uplink`] and [`Downlink`]. A unit test
 /// recomputes it from the types, so a message change without a new fingerprint fails the tests.
-pub const SCHEMA_FINGERPRINT: u64 = 0x8011_346f_779a_dc2c;
+pub const SCHEMA_FINGERPRINT: u64 = 0x8dd8_b566_5692_e828;
 
 /// Largest uplink frame on the wire, including CRC, COBS overhead and delimiter.
 pub const MAX_UPLINK_FRAME: usize = max_frame_len(Uplink::POSTCARD_MAX_SIZE);

@@ -161,6 +161,8 @@ pub struct DvlSample {
     pub fom_mps: f32,
     /// Distance to the bottom, m (negative: unknown).
     pub altitude_m: f32,
+    /// The DVL's own velocity covariance, DVL axes, row-major, (m/s)^2, when it sends one.
+    pub covariance_m2ps2: Option<[f32; 9]>,
 }
 
 /// Raw sensor samples, for recording, replay and offline tuning.
@@ -191,21 +193,107 @@ pub struct CompassReport {
     pub units_used: u8,
 }
 
+/// What one aid source did with its latest measurement, and since boot (PX4 EKF2's
+/// `estimator_aid_source` status): one per source in [`AidStatuses`], by name.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AidStatus {
+    /// Time of validity of the latest measurement offered to the filter (head clock; 0: none).
+    pub t_us: u64,
+    /// Its normalised innovation squared against the filter's full innovation covariance.
+    pub nis: f32,
+    /// Its test ratio: the gate's NIS over the gate's threshold (> 1: refused by the gate).
+    pub test_ratio: f32,
+    /// The measurement noise in use, as a variance (mean of the diagonal; the source's unit
+    /// squared: rad^2, m^2, (m/s)^2, m^2).
+    pub noise_var: f32,
+    /// Whether the latest measurement was fused.
+    pub fused: bool,
+    /// Since boot: measurements fused, refused by the gate, and resets of the state this source
+    /// measures after its timeout or a run of refusals (heading, velocity, position).
+    pub fused_count: u32,
+    pub refused_count: u32,
+    pub resets: u32,
+    /// Time of validity of the last fused measurement (0: never).
+    pub last_fused_us: u64,
+}
+
+/// The aid sources of the head's estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AidSource {
+    Heading,
+    Depth,
+    Dvl,
+    Position,
+}
+
+impl AidSource {
+    /// Every source, in the order the telemetry lists them.
+    pub const ALL: [AidSource; 4] = [AidSource::Heading, AidSource::Depth, AidSource::Dvl, AidSource::Position];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            AidSource::Heading => "heading",
+            AidSource::Depth => "depth",
+            AidSource::Dvl => "dvl",
+            AidSource::Position => "position",
+        }
+    }
+}
+
+/// Every aid source's status, by name. [`AidStatuses::get`] matches every [`AidSource`]: a new
+/// source does not compile until it has its field here.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, MaxSize)]
+#[cfg_attr(test, derive(postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AidStatuses {
+    /// The polarization compass's heading fixes.
+    pub heading: AidStatus,
+    /// The depth sensor.
+    pub depth: AidStatus,
+    /// The DVL's bottom-track velocity.
+    pub dvl: AidStatus,
+    /// Position fixes from the host (USBL, map).
+    pub position: AidStatus,
+}
+
+impl AidStatuses {
+    pub fn get(&self, s: AidSource) -> &AidStatus {
+        match s {
+            AidSource::Heading => &self.heading,
+            AidSource::Depth => &self.depth,
+            AidSource::Dvl => &self.dvl,
+            AidSource::Position => &self.position,
+        }
+    }
+
+    pub fn get_mut(&mut self, s: AidSource) -> &mut AidStatus {
+        match s {
+            AidSource::Heading => &mut self.heading,
+            AidSource::Depth => &mut self.depth,
+            AidSource::Dvl => &mut self.dvl,
+            AidSource::Position => &mut self.position,
+        }
+    }
+}
+
 /// Estimator health, for tuning and for noticing trouble.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
 #[cfg_attr(test, derive(postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FilterHealth {
     pub t_us: u64,
-    /// Latest normalised innovation squared per update kind: heading, depth, velocity, position.
-    pub nis: [f32; 4],
+    /// Each aid source's status, by name.
+    pub aid: AidStatuses,
+    /// The IMU's process-noise scale in use (variance ratio against the head's tuning; it grows
+    /// when the innovations say the IMU is noisier than configured).
+    pub imu_q_scale: f32,
     /// Fading factor applied at the latest update (1.0 = no fading).
     pub lambda: f32,
     /// Diagonal of the (adapted) process noise, per state group: attitude, velocity, position,
     /// gyro bias, accel bias (mean of each group's diagonal).
     pub q_diag: [f32; 5],
-    /// Diagonal of the (adapted) measurement noise: heading, depth, velocity, position.
-    pub r_diag: [f32; 4],
     /// Covariance repairs (symmetrise / eigenvalue floor) since boot.
     pub pd_repairs: u32,
     /// Filter steps refused since boot because the state covariance could not be made

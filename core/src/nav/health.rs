@@ -1,6 +1,6 @@
 //! Filter health as the `FilterHealth` telemetry message.
 
-use subnav_wire::messages::FilterHealth;
+use subnav_wire::messages::{AidStatus, AidStatuses, FilterHealth};
 
 use super::filter::NavFilter;
 use super::state::{ATT, BA, BG, POS, VEL};
@@ -17,6 +17,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// - `nonfinite_rejects`: inputs rejected before the UKF plus those the UKF rejected.
     /// - `late_fused` / `late_refused`: the delayed-fusion counters (`delayed_updates`,
     ///   `delay_rejects`).
+    /// - `aid`: each source's latest NIS and noise variance; the estimator, which owns the aid
+    ///   sources, fills the rest (test ratio, counts, times, resets).
     /// - `heading_resets` / `position_resets` are left 0: the estimator that decides them fills
     ///   them.
     /// - `cpu_load_permille` is left 0: the firmware fills it.
@@ -27,10 +29,14 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let g = |s: usize| (0..3).map(|k| q.get((s + k, s + k)).copied().unwrap_or(0.0)).sum::<f32>() / (3.0 * t);
         FilterHealth {
             t_us: self.t_us,
-            nis: self.nis,
+            aid: {
+                let r = self.r_diag();
+                let st = |k: usize| AidStatus { nis: self.nis[k], noise_var: r[k], ..AidStatus::default() };
+                AidStatuses { heading: st(0), depth: st(1), dvl: st(2), position: st(3) }
+            },
+            imu_q_scale: self.q_scale_applied,
             lambda: self.lambda,
             q_diag: [g(ATT), g(VEL), g(POS), g(BG), g(BA)],
-            r_diag: self.r_diag(),
             pd_repairs: h.pd_repairs.saturating_add(h.adapt_fallbacks),
             cov_unrepairable: h.unrepairable_rejects,
             gate_rejects: h.gate_rejects,

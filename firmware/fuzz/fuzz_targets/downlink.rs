@@ -169,7 +169,7 @@ fuzz_target!(|data: &[u8]| {
                 assert!(v.clone().all(|v| !v.is_nan()), "{n:?}")
             }
             // NIS is NaN for an update kind that has not run yet (by design); the rest is numbers.
-            Uplink::Health(h) => assert!(h.q_diag.iter().chain(&h.r_diag).chain([&h.lambda]).all(|v| v.is_finite()), "{h:?}"),
+            Uplink::Health(h) => assert!(h.q_diag.iter().chain([&h.lambda, &h.imu_q_scale]).all(|v| v.is_finite()), "{h:?}"),
             _ => {}
         }
     }

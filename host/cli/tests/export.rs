@@ -33,10 +33,10 @@ fn messages() -> Vec<Uplink> {
         if i % 4 == 0 {
             v.push(Uplink::Health(FilterHealth {
                 t_us,
-                nis: [1.0, f32::NAN, 0.5, 2.0],
+                aid: subnav_wire::AidStatuses { heading: subnav_wire::AidStatus { nis: 1.0, test_ratio: 0.1, noise_var: 1e-4, fused: true, fused_count: 3, ..Default::default() }, depth: subnav_wire::AidStatus { nis: f32::NAN, ..Default::default() }, ..Default::default() },
+                imu_q_scale: 1.0,
                 lambda: 1.0,
                 q_diag: [1e-6; 5],
-                r_diag: [1e-3; 4],
                 pd_repairs: 0,
                 cov_unrepairable: 0,
                 gate_rejects: 1,

@@ -33,10 +33,10 @@ fn records_a_tcp_source_losslessly() {
     // The head re-acquired its position once.
     let health = FilterHealth {
         t_us: 19_950_000,
-        nis: [1.0; 4],
+        aid: subnav_wire::AidStatuses { heading: subnav_wire::AidStatus { nis: 1.0, test_ratio: 0.1, noise_var: 1e-4, fused: true, fused_count: 3, ..Default::default() }, depth: subnav_wire::AidStatus { nis: f32::NAN, ..Default::default() }, ..Default::default() },
+        imu_q_scale: 1.0,
         lambda: 1.0,
         q_diag: [0.0; 5],
-        r_diag: [0.0; 4],
         pd_repairs: 0,
         cov_unrepairable: 0,
         gate_rejects: 5,

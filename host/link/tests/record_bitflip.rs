@@ -40,10 +40,10 @@ fn message(r: &mut Rng) -> Uplink {
         }),
         1 => Uplink::Health(FilterHealth {
             t_us,
-            nis: [r.f(); 4],
+            aid: subnav_wire::AidStatuses { dvl: subnav_wire::AidStatus { nis: r.f(), test_ratio: r.f(), noise_var: r.f(), ..Default::default() }, ..Default::default() },
+            imu_q_scale: r.f(),
             lambda: r.f(),
             q_diag: [r.f(); 5],
-            r_diag: [r.f(); 4],
             pd_repairs: r.next() as u32,
             cov_unrepairable: 0,
             gate_rejects: 3,

@@ -54,9 +54,13 @@ pub struct ErrPoint {
 pub struct HealthPoint {
     pub t_s: f64,
     pub lambda: f64,
-    pub nis: [f64; 4],
+    /// Per aid source, in `subnav_wire::AidSource::ALL`'s order: the latest test ratio (NIS /
+    /// gate: above 1 refused) and noise variance.
+    pub test_ratio: [f64; 4],
     pub q_diag: [f64; 5],
-    pub r_diag: [f64; 4],
+    pub noise_var: [f64; 4],
+    /// The IMU process-noise scale in use.
+    pub imu_q_scale: f64,
     pub gate_rejects: u32,
     pub pd_repairs: u32,
 }
@@ -159,9 +163,10 @@ impl ReportData {
                 Uplink::Health(h) => d.health.push(HealthPoint {
                     t_s: h.t_us as f64 * 1e-6,
                     lambda: f(h.lambda),
-                    nis: h.nis.map(f),
+                    test_ratio: subnav_wire::AidSource::ALL.map(|s| f(h.aid.get(s).test_ratio)),
                     q_diag: h.q_diag.map(f),
-                    r_diag: h.r_diag.map(f),
+                    noise_var: subnav_wire::AidSource::ALL.map(|s| f(h.aid.get(s).noise_var)),
+                    imu_q_scale: f(h.imu_q_scale),
                     gate_rejects: h.gate_rejects,
                     pd_repairs: h.pd_repairs,
                 }),

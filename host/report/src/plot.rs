@@ -292,13 +292,13 @@ fn health(d: &ReportData, path: &Path) -> Result<bool> {
         let areas = root.split_evenly((4, 1));
         let pts = |f: &dyn Fn(&super::HealthPoint) -> f64| d.health.iter().map(|h| (h.t_s, f(h))).collect::<Vec<_>>();
         series_chart(&areas[0], text, "Fading factor lambda", "lambda", x.clone(), &[("lambda", EST, pts(&|h| h.lambda))], false)?;
-        let names = ["heading", "depth", "velocity", "position"];
-        let nis: Vec<_> = (0..4).map(|k| (names[k], COLS[k], pts(&|h| h.nis[k]))).collect();
-        series_chart(&areas[1], text, "NIS per update kind", "NIS", x.clone(), &nis, true)?;
+        let names = subnav_wire::AidSource::ALL.map(|s| s.name());
+        let ratio: Vec<_> = (0..4).map(|k| (names[k], COLS[k], pts(&|h| h.test_ratio[k]))).collect();
+        series_chart(&areas[1], text, "Test ratio per aid source (NIS / gate; above 1 refused)", "test ratio", x.clone(), &ratio, true)?;
         let qn = ["attitude", "velocity", "position", "gyro bias", "accel bias"];
         let q: Vec<_> = (0..5).map(|k| (qn[k], COLS[k], pts(&|h| h.q_diag[k]))).collect();
         series_chart(&areas[2], text, "Process noise Q (mean diagonal per group)", "Q", x.clone(), &q, true)?;
-        let r: Vec<_> = (0..4).map(|k| (names[k], COLS[k], pts(&|h| h.r_diag[k]))).collect();
+        let r: Vec<_> = (0..4).map(|k| (names[k], COLS[k], pts(&|h| h.noise_var[k]))).collect();
         series_chart(&areas[3], text, "Measurement noise R", "R", x, &r, true)
     })
 }

@@ -69,11 +69,19 @@ pub fn text(m: &Uplink) -> String {
             c.no_fix_reason
         ),
         Uplink::Health(h) => format!(
-            "health  t={} cpu={:.1}% lambda={:.3} nis={:?} pd_repairs={} cov_unrepairable={} gate_rejects={} nonfinite={} late_fused={} late_refused={} resets heading={} position={}",
+            "health  t={} cpu={:.1}% lambda={:.3} imu_q_scale={:.1} {} pd_repairs={} cov_unrepairable={} gate_rejects={} nonfinite={} late_fused={} late_refused={} resets heading={} position={}",
             secs(h.t_us),
             h.cpu_load_permille as f32 / 10.0,
             h.lambda,
-            h.nis,
+            h.imu_q_scale,
+            subnav_wire::AidSource::ALL
+                .iter()
+                .map(|s| {
+                    let a = h.aid.get(*s);
+                    format!("{}: ratio={:.2} fused={}/{} resets={}", s.name(), a.test_ratio, a.fused_count, a.fused_count + a.refused_count, a.resets)
+                })
+                .collect::<Vec<_>>()
+                .join(", "),
             h.pd_repairs,
             h.cov_unrepairable,
             h.gate_rejects,

@@ -16,6 +16,29 @@ fn int() -> Value {
 fn arr(n: usize) -> Value {
     json!({"type": "array", "items": num(), "minItems": n, "maxItems": n})
 }
+/// A nested object (no `host_t_us`, no title): one aid source's status.
+fn aid_status() -> Value {
+    let fields = [
+        ("t_us", int()),
+        ("nis", num()),
+        ("test_ratio", num()),
+        ("noise_var", num()),
+        ("fused", json!({"type": "boolean"})),
+        ("fused_count", int()),
+        ("refused_count", int()),
+        ("resets", int()),
+        ("last_fused_us", int()),
+    ];
+    let props: serde_json::Map<String, Value> = fields.iter().map(|(k, v)| ((*k).to_string(), v.clone())).collect();
+    let required: Vec<&str> = fields.iter().map(|(k, _)| *k).collect();
+    json!({"type": "object", "properties": props, "required": required})
+}
+/// Every aid source's status, by name (`subnav_wire::AidStatuses`).
+fn aid_statuses() -> Value {
+    let props: serde_json::Map<String, Value> = subnav_wire::AidSource::ALL.iter().map(|s| (s.name().to_string(), aid_status())).collect();
+    let required: Vec<&str> = subnav_wire::AidSource::ALL.iter().map(|s| s.name()).collect();
+    json!({"type": "object", "properties": props, "required": required})
+}
 fn obj(title: &str, fields: &[(&str, Value)]) -> Value {
     let mut props = serde_json::Map::new();
     props.insert("host_t_us".into(), int());
@@ -80,6 +103,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("vel_dvl_mps", arr(3)),
                 ("fom_mps", num()),
                 ("altitude_m", num()),
+                ("covariance_m2ps2", json!({"type": ["array", "null"], "items": num(), "minItems": 9, "maxItems": 9})),
             ],
         ),
         "compass" => obj(
@@ -98,10 +122,10 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
             "subnav.FilterHealth",
             &[
                 ("t_us", t),
-                ("nis", arr(4)),
+                ("aid", aid_statuses()),
+                ("imu_q_scale", num()),
                 ("lambda", num()),
                 ("q_diag", arr(5)),
-                ("r_diag", arr(4)),
                 ("pd_repairs", int()),
                 ("cov_unrepairable", int()),
                 ("gate_rejects", int()),

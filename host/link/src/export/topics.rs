@@ -44,10 +44,6 @@ pub const MAP: &str = "/subnav/map";
 /// The frame every pose and scene entity is drawn in.
 pub const FRAME: &str = "ned";
 
-/// Gates of the default tuning per update kind (heading, depth, velocity, position): chi-square
-/// at p = 0.999 for 1, 1, 3 and 3 degrees of freedom (`subnav_core::nav::NavConfig::default`).
-/// The test ratio is NIS / gate: above 1 the update is rejected.
-pub const DEFAULT_GATES: [f64; 4] = [10.828, 10.828, 16.266, 16.266];
 
 /// Seconds of dive per trajectory segment.
 const SEGMENT_US: u64 = 1_000_000;
@@ -220,13 +216,21 @@ impl Projector {
                 }
             }
             Uplink::Health(h) => {
-                let ratio: Vec<Value> = h.nis.iter().zip(DEFAULT_GATES).map(|(n, g)| num(f(*n) / g)).collect();
+                let mut aid = serde_json::Map::new();
+                for src in subnav_wire::AidSource::ALL {
+                    let a = h.aid.get(src);
+                    aid.insert(
+                        src.name().into(),
+                        json!({"nis": num(f(a.nis)), "test_ratio": num(f(a.test_ratio)), "noise_var": num(f(a.noise_var)), "fused": a.fused,
+                               "fused_count": a.fused_count, "refused_count": a.refused_count, "resets": a.resets}),
+                    );
+                }
                 push(
                     out,
                     HEALTH_SUMMARY,
                     json!({
-                        "timestamp": stamp(t), "nis": h.nis.map(|x| num(f(x))), "test_ratio": ratio, "lambda": num(f(h.lambda)),
-                        "q_diag": h.q_diag.map(|x| num(f(x))), "r_diag": h.r_diag.map(|x| num(f(x))),
+                        "timestamp": stamp(t), "aid": aid, "imu_q_scale": num(f(h.imu_q_scale)), "lambda": num(f(h.lambda)),
+                        "q_diag": h.q_diag.map(|x| num(f(x))),
                         "gate_rejects": h.gate_rejects, "pd_repairs": h.pd_repairs, "cov_unrepairable": h.cov_unrepairable,
                         "nonfinite_rejects": h.nonfinite_rejects, "cpu_load_permille": h.cpu_load_permille,
                     }),
@@ -391,12 +395,23 @@ fn compass_fix_schema() -> Value {
         }),
     )
 }
+/// Per aid source (by name): its latest NIS, test ratio (NIS / gate), noise variance, whether it
+/// was fused, and its counts.
+fn aid_summary_schema() -> Value {
+    let int = json!({"type": "integer", "minimum": 0});
+    let one = json!({"type": "object", "properties": {
+        "nis": n(), "test_ratio": n(), "noise_var": n(), "fused": {"type": "boolean"},
+        "fused_count": int, "refused_count": int, "resets": int,
+    }});
+    let props: serde_json::Map<String, Value> = subnav_wire::AidSource::ALL.iter().map(|s| (s.name().to_string(), one.clone())).collect();
+    json!({"type": "object", "properties": props})
+}
 fn health_summary_schema() -> Value {
     let int = json!({"type": "integer", "minimum": 0});
     base(
         "subnav.HealthSummary",
         json!({
-            "timestamp": time_schema(), "nis": narr(4), "test_ratio": narr(4), "lambda": n(), "q_diag": narr(5), "r_diag": narr(4),
+            "timestamp": time_schema(), "aid": aid_summary_schema(), "imu_q_scale": n(), "lambda": n(), "q_diag": narr(5),
             "gate_rejects": int, "pd_repairs": int, "cov_unrepairable": int, "nonfinite_rejects": int, "cpu_load_permille": int,
         }),
     )
