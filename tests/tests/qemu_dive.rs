@@ -122,9 +122,10 @@ fn the_stack_peak_is_painted_and_reported() {
     // predict (one more 15x15 candidate P) and the downlink duplicate filter: the goal is missed
     // by 296 B (docs/PERFORMANCE.md, "Firmware size and RAM"). The bound guards against a
     // further regression (a first duplicate filter took the peak to 40.7 KB) until it is won back.
-    // Issue 34 (the IMU noise scale in every `NavConfig` copy on the alignment's path, the aid
-    // timeouts, the warm-start record) took it to 33,400 B: the bound is 33,536 B until issue 38
-    // wins it back.
-    const RAM_BOUND_B: u32 = 32 * 1024 + 768;
+    // Issue 34 took it to 33,760 B (the IMU noise scale in every `NavConfig` copy on the
+    // alignment's path, the warm-start record, and protocol 7's named aid-source statuses: 176 B
+    // kept in the estimator, a larger `Health` on the telemetry path): the bound is 33.25 KiB
+    // until issue 38 wins it back.
+    const RAM_BOUND_B: u32 = 32 * 1024 + 1280;
     assert!(peak + QEMU_STATIC_RAM_B <= RAM_BOUND_B, "stack peak + static RAM over {RAM_BOUND_B} B (goal 32 KiB): {line}");
 }
