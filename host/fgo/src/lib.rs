@@ -34,6 +34,8 @@ pub mod kitti_run;
 pub mod log;
 pub mod montecarlo;
 pub mod preintegration;
+pub mod pyfg;
+pub mod range2d;
 pub mod sim;
 pub mod smoother;
 pub mod solver;
