@@ -66,6 +66,45 @@ impl Pose2 {
     }
 }
 
+/// GTSAM's between error `Logmap(m^-1 (a^-1 b))` and its Jacobians with respect to `(x, y,
+/// theta)` of `a` and of `b` (the increments of [`Graph2`] are additive in these). Analytic:
+/// `Logmap(q) = (V^-1(w) q_t, w)` with `V^-1 = [[al, w/2], [-w/2, al]]`, `al = (w/2) cot(w/2)`.
+pub fn between_error(m: &Pose2, a: &Pose2, b: &Pose2) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
+    let h = a.between(b);
+    let q = m.between(&h);
+    let w = q.theta_rad;
+    let (al, dal) = if w.abs() < 1e-4 {
+        (1.0 - w * w / 12.0 - w.powi(4) / 720.0, -w / 6.0 - w.powi(3) / 180.0)
+    } else {
+        let half = 0.5 * w;
+        let (sh, ch) = half.sin_cos();
+        (half * ch / sh, 0.5 * ch / sh - 0.5 * half / (sh * sh))
+    };
+    let vinv = Matrix2::new(al, 0.5 * w, -0.5 * w, al);
+    let dvinv = Matrix2::new(dal, 0.5, -0.5, dal);
+    let qt = q.t();
+    let e = vinv * qt;
+    // d e / d (q_t, w)
+    let mut de = Matrix3::zeros();
+    de.fixed_view_mut::<2, 2>(0, 0).copy_from(&vinv);
+    de.fixed_view_mut::<2, 1>(0, 2).copy_from(&(dvinv * qt));
+    de[(2, 2)] = 1.0;
+    // q_t = Rm^T (Ra^T (t_b - t_a) - t_m), w = theta_b - theta_a - theta_m
+    let rmt = m.rot().transpose();
+    let rat = a.rot().transpose();
+    let (sa, ca) = a.theta_rad.sin_cos();
+    let drat = Matrix2::new(-sa, ca, -ca, -sa);
+    let d = b.t() - a.t();
+    let mut dqa = Matrix3::zeros();
+    dqa.fixed_view_mut::<2, 2>(0, 0).copy_from(&(-rmt * rat));
+    dqa.fixed_view_mut::<2, 1>(0, 2).copy_from(&(rmt * drat * d));
+    dqa[(2, 2)] = -1.0;
+    let mut dqb = Matrix3::zeros();
+    dqb.fixed_view_mut::<2, 2>(0, 0).copy_from(&(rmt * rat));
+    dqb[(2, 2)] = 1.0;
+    (Vector3::new(e.x, e.y, w), de * dqa, de * dqb)
+}
+
 /// Angle in (-pi, pi].
 pub fn wrap(a: f64) -> f64 {
     let mut r = a.rem_euclid(2.0 * std::f64::consts::PI);
@@ -118,7 +157,13 @@ pub struct Graph2 {
     pub range_var_nominal: Vec<f64>,
     /// Prior on pose 0: mean, sigmas (x m, y m, theta rad). Used for the gauge of unknown beacons.
     pub prior0: Option<(Pose2, [f64; 3])>,
+    /// Per-beacon range biases (m, `r = |t - b| + bias`), estimated when `Some` (with a zero-mean
+    /// prior of sigma [`BIAS_PRIOR_SIGMA_M`]); `None`: no bias (GTSAM's RangeFactor2D).
+    pub range_bias_m: Option<Vec<f64>>,
 }
+
+/// Sigma of the zero-mean prior on each beacon's range bias, m.
+pub const BIAS_PRIOR_SIGMA_M: f64 = 10.0;
 
 /// Sigmas of the gauge prior on the first pose when the beacons are unknown.
 pub const GAUGE_SIGMAS: [f64; 3] = [1e-3, 1e-3, 1e-4];
@@ -164,6 +209,7 @@ impl Graph2 {
             ranges: fg.ranges.iter().map(|r| (r.pose, r.beacon, r.range_m, r.var_m2)).collect(),
             range_var_nominal: fg.ranges.iter().map(|r| r.var_m2).collect(),
             prior0: None,
+            range_bias_m: None,
         };
         debug_assert_eq!(g.poses.len(), n);
         match beacons {
@@ -181,8 +227,18 @@ impl Graph2 {
         Ok(g)
     }
 
-    fn n_vars(&self) -> usize {
+    /// Estimate a range bias per beacon from now on.
+    pub fn with_range_bias(mut self) -> Self {
+        self.range_bias_m = Some(vec![0.0; self.beacons.len()]);
+        self
+    }
+
+    fn bias_offset(&self) -> usize {
         3 * self.poses.len() + if self.beacons_mode == Beacons::Unknown { 2 * self.beacons.len() } else { 0 }
+    }
+
+    fn n_vars(&self) -> usize {
+        self.bias_offset() + self.range_bias_m.as_ref().map_or(0, |b| b.len())
     }
 
     /// Whitened residuals and Jacobian entries (row, var, value) of every factor.
@@ -192,35 +248,14 @@ impl Graph2 {
         let bo = 3 * self.poses.len();
         for (i, j, m, cov) in &self.odometry {
             let w = inv_sqrt_lower(cov)?;
-            let f = |a: &Pose2, b: &Pose2| m.between(&a.between(b)).logmap();
-            let (a, b) = (self.poses[*i], self.poses[*j]);
-            let e = w * f(&a, &b);
+            let (e, ja, jb) = between_error(m, &self.poses[*i], &self.poses[*j]);
             let row0 = r.len();
-            r.extend(e.iter().copied());
+            r.extend((w * e).iter().copied());
             if let Some(jac) = jac.as_deref_mut() {
-                // central differences on (x, y, theta) of each pose (the increment is additive)
-                const H: f64 = 1e-6;
-                for (which, key) in [(0usize, *i), (1, *j)] {
-                    for k in 0..3 {
-                        let bump = |p: &Pose2, d: f64| {
-                            let mut q = *p;
-                            match k {
-                                0 => q.x_m += d,
-                                1 => q.y_m += d,
-                                _ => q.theta_rad += d,
-                            }
-                            q
-                        };
-                        let (plus, minus) = if which == 0 {
-                            (f(&bump(&a, H), &b), f(&bump(&a, -H), &b))
-                        } else {
-                            (f(&a, &bump(&b, H)), f(&a, &bump(&b, -H)))
-                        };
-                        let mut d = plus - minus;
-                        d[2] = wrap(d[2]);
-                        let col = w * d / (2.0 * H);
-                        for row in 0..3 {
-                            jac.push((row0 + row, 3 * key + k, col[row]));
+                for (key, jk) in [(*i, w * ja), (*j, w * jb)] {
+                    for row in 0..3 {
+                        for k in 0..3 {
+                            jac.push((row0 + row, 3 * key + k, jk[(row, k)]));
                         }
                     }
                 }
@@ -231,7 +266,8 @@ impl Graph2 {
             let d = self.poses[*p].t() - self.beacons[*b];
             let dist = d.norm();
             let row = r.len();
-            r.push((dist - range) / s);
+            let bias = self.range_bias_m.as_ref().map_or(0.0, |v| v[*b]);
+            r.push((dist + bias - range) / s);
             if let Some(jac) = jac.as_deref_mut() {
                 if dist < 1e-9 {
                     return Err(FgoError::Numeric(format!("pose {p} is on beacon {b}: range Jacobian undefined")));
@@ -243,29 +279,29 @@ impl Graph2 {
                     jac.push((row, bo + 2 * b, -u.x));
                     jac.push((row, bo + 2 * b + 1, -u.y));
                 }
+                if self.range_bias_m.is_some() {
+                    jac.push((row, self.bias_offset() + b, 1.0 / s));
+                }
+            }
+        }
+        if let Some(biases) = &self.range_bias_m {
+            let off = self.bias_offset();
+            for (k, b) in biases.iter().enumerate() {
+                if let Some(jac) = jac.as_deref_mut() {
+                    jac.push((r.len(), off + k, 1.0 / BIAS_PRIOR_SIGMA_M));
+                }
+                r.push(b / BIAS_PRIOR_SIGMA_M);
             }
         }
         if let Some((mean, sig)) = &self.prior0 {
             // GTSAM's PriorFactor<Pose2>: Logmap(mean^-1 x)
-            let f = |x: &Pose2| mean.between(x).logmap();
-            let x = self.poses[0];
-            let e = f(&x);
+            let (e, _, jx) = between_error(mean, &Pose2::new(0.0, 0.0, 0.0), &self.poses[0]);
             let row0 = r.len();
             r.extend((0..3).map(|k| e[k] / sig[k]));
             if let Some(jac) = jac.as_deref_mut() {
-                const H: f64 = 1e-6;
-                for k in 0..3 {
-                    let mut a = x;
-                    let mut b = x;
-                    match k {
-                        0 => (a.x_m += H, b.x_m -= H),
-                        1 => (a.y_m += H, b.y_m -= H),
-                        _ => (a.theta_rad += H, b.theta_rad -= H),
-                    };
-                    let mut d = f(&a) - f(&b);
-                    d[2] = wrap(d[2]);
-                    for row in 0..3 {
-                        jac.push((row0 + row, k, d[row] / (2.0 * H) / sig[row]));
+                for row in 0..3 {
+                    for k in 0..3 {
+                        jac.push((row0 + row, k, jx[(row, k)] / sig[row]));
                     }
                 }
             }
@@ -296,6 +332,12 @@ impl Graph2 {
                 b.y += dx[bo + 2 * k + 1];
             }
         }
+        let off = g.bias_offset();
+        if let Some(biases) = &mut g.range_bias_m {
+            for (k, b) in biases.iter_mut().enumerate() {
+                *b += dx[off + k];
+            }
+        }
         g
     }
 
@@ -308,24 +350,7 @@ impl Graph2 {
         let mut iterations = 0;
         while iterations < opts.max_iterations {
             iterations += 1;
-            let mut jac = Vec::new();
-            let r = self.linearize(Some(&mut jac))?;
-            // J^T J and J^T r, accumulated per row of J
-            let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); r.len()];
-            for (row, col, v) in jac {
-                rows[row].push((col, v));
-            }
-            let mut coo = CooMatrix::new(nv, nv);
-            let mut g = DVector::<f64>::zeros(nv);
-            for (row, entries) in rows.iter().enumerate() {
-                for (a, va) in entries {
-                    g[*a] += va * r[row];
-                    for (b, vb) in entries {
-                        coo.push(*a, *b, va * vb);
-                    }
-                }
-            }
-            let h = CscMatrix::from(&coo);
+            let (coo, g) = self.normal_equations()?;
             let mut accepted = false;
             let mut done = false;
             while lambda <= 1e10 {
@@ -353,7 +378,6 @@ impl Graph2 {
                 }
                 lambda *= 10.0;
             }
-            drop(h);
             if !accepted || done {
                 break;
             }
@@ -361,9 +385,50 @@ impl Graph2 {
         Ok(Lm2Report { iterations, initial_cost, final_cost: cost })
     }
 
+    /// `J^T J` (triplets, duplicates summed on conversion) and `J^T r` at the current estimate.
+    fn normal_equations(&self) -> Result<(CooMatrix<f64>, DVector<f64>), FgoError> {
+        let nv = self.n_vars();
+        let mut jac = Vec::new();
+        let r = self.linearize(Some(&mut jac))?;
+        let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); r.len()];
+        for (row, col, v) in jac {
+            rows[row].push((col, v));
+        }
+        let mut coo = CooMatrix::new(nv, nv);
+        let mut g = DVector::<f64>::zeros(nv);
+        for (row, entries) in rows.iter().enumerate() {
+            for (a, va) in entries {
+                g[*a] += va * r[row];
+                for (b, vb) in entries {
+                    coo.push(*a, *b, va * vb);
+                }
+            }
+        }
+        Ok((coo, g))
+    }
+
+    /// Undamped Gauss-Newton steps with no cost test, from an LM optimum: where the cost is too
+    /// flat for LM's cost comparisons to tell points 1e-6 m apart (a weakly observed beacon), the
+    /// exact solve of the normal equations still finds the stationary point. Returns the last
+    /// step's largest entry.
+    pub fn polish_gauss_newton(&mut self, steps: usize) -> Result<f64, FgoError> {
+        let mut last = f64::NAN;
+        for _ in 0..steps {
+            let (coo, g) = self.normal_equations()?;
+            let chol = CscCholesky::factor(&CscMatrix::from(&coo))
+                .map_err(|e| FgoError::Numeric(format!("information matrix not positive definite ({e:?})")))?;
+            let dx = -chol.solve(&g);
+            let dx = DVector::from_iterator(g.len(), dx.column(0).iter().copied());
+            last = dx.amax();
+            *self = self.retract(&dx);
+        }
+        Ok(last)
+    }
+
     /// Range residuals `|t - b| - r` (m) at the current estimate.
     pub fn range_residuals_m(&self) -> Vec<f64> {
-        self.ranges.iter().map(|(p, b, r, _)| (self.poses[*p].t() - self.beacons[*b]).norm() - r).collect()
+        let bias = |b: usize| self.range_bias_m.as_ref().map_or(0.0, |v| v[b]);
+        self.ranges.iter().map(|(p, b, r, _)| (self.poses[*p].t() - self.beacons[*b]).norm() + bias(*b) - r).collect()
     }
 
     /// Solve, gate the ranges, re-solve until the decisions settle. Returns the last LM report and
@@ -395,6 +460,43 @@ impl Graph2 {
             last = Some(abnormal);
         }
         Ok((report, summary))
+    }
+
+    /// Noise adaptation (variance components): the file's odometry covariance and range variance
+    /// scaled, each group by one factor, until the median whitened squared residual of the group
+    /// equals the chi-square median of its dimension (a robust estimate of how much too tight the
+    /// model is); never below the file's values. Returns (odometry scale, range scale) on the
+    /// variances.
+    pub fn adapt_noise(&mut self, opts: &LmOptions2, rounds: usize) -> Result<(f64, f64), FgoError> {
+        const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_7;
+        const CHI2_3_MEDIAN: f64 = 2.365_973_884_375_338;
+        let odo_nominal: Vec<Matrix3<f64>> = self.odometry.iter().map(|o| o.3).collect();
+        let rng_nominal = self.range_var_nominal.clone();
+        let (mut so, mut sr) = (1.0f64, 1.0f64);
+        for _ in 0..rounds {
+            self.solve_lm(opts)?;
+            let mut go = Vec::with_capacity(self.odometry.len());
+            for (i, j, m, cov) in &self.odometry {
+                let e = m.between(&self.poses[*i].between(&self.poses[*j])).logmap();
+                let w = inv_sqrt_lower(cov)?;
+                go.push((w * e).norm_squared());
+            }
+            let gr: Vec<f64> = self.range_residuals_m().iter().zip(&self.ranges).map(|(e, r)| e * e / r.3).collect();
+            let (new_so, new_sr) = ((so * median(&go) / CHI2_3_MEDIAN).max(1.0), (sr * median(&gr) / CHI2_1_MEDIAN).max(1.0));
+            let settled = (new_so / so - 1.0).abs() < 0.01 && (new_sr / sr - 1.0).abs() < 0.01;
+            (so, sr) = (new_so, new_sr);
+            for (o, n) in self.odometry.iter_mut().zip(&odo_nominal) {
+                o.3 = n * so;
+            }
+            for ((r, v), n) in self.ranges.iter_mut().zip(self.range_var_nominal.iter_mut()).zip(&rng_nominal) {
+                *v = n * sr;
+                r.3 = *v;
+            }
+            if settled {
+                break;
+            }
+        }
+        Ok((so, sr))
     }
 
     /// Move the initial trajectory rigidly onto the known beacons' ranges: for headings on a
@@ -587,6 +689,33 @@ pub fn ape_rigid_2d(est: &[Vector2<f64>], truth: &[Vector2<f64>]) -> Result<(f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn between_jacobians_match_differences() {
+        let (m, a, b) = (Pose2::new(1.0, 0.5, 0.3), Pose2::new(0.2, -0.1, 0.1), Pose2::new(1.5, 0.9, 0.9));
+        for (m, a, b) in
+            [(m, a, b), (a.between(&b), a, b), (Pose2::new(0.1, 0.0, 1e-6), Pose2::new(0.0, 0.0, 0.0), Pose2::new(0.1, 0.0, 0.0))]
+        {
+            let (e, ja, jb) = between_error(&m, &a, &b);
+            assert!((e - m.between(&a.between(&b)).logmap()).amax() < 1e-12);
+            const H: f64 = 1e-6;
+            for k in 0..3 {
+                let bump = |p: &Pose2, d: f64| {
+                    let mut q = *p;
+                    match k {
+                        0 => q.x_m += d,
+                        1 => q.y_m += d,
+                        _ => q.theta_rad += d,
+                    }
+                    q
+                };
+                let na = (between_error(&m, &bump(&a, H), &b).0 - between_error(&m, &bump(&a, -H), &b).0) / (2.0 * H);
+                let nb = (between_error(&m, &a, &bump(&b, H)).0 - between_error(&m, &a, &bump(&b, -H)).0) / (2.0 * H);
+                assert!((na - ja.column(k)).amax() < 1e-7, "{k}: {na} vs {}", ja.column(k));
+                assert!((nb - jb.column(k)).amax() < 1e-7, "{k}: {nb} vs {}", jb.column(k));
+            }
+        }
+    }
 
     #[test]
     fn logmap_is_gtsams() {

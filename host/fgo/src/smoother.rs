@@ -225,7 +225,8 @@ impl Smoother {
             _ => return Err(FgoError::Input("only DVL/USBL factors are gated".into())),
         };
         let h = &e.jacobians[0];
-        let d = gating::gate(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating)?;
+        let scale = if self.cfg.gating.adaptive { self.gate_log.adaptive_scale(sensor, e.residual.len())? } else { 1.0 };
+        let d = gating::gate_scaled(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating, scale)?;
         if d.kappa != 1.0 {
             match &mut f {
                 Factor::Dvl(x) => x.noise = x.noise.scaled(d.kappa),
