@@ -170,7 +170,7 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
     let drops = Faults { dropouts_s: vec![(100.0, 160.0), (300.0, 360.0)], seed: 1, ..Default::default() };
     let both = Faults { dropouts_s: drops.dropouts_s.clone(), ..jumps.clone() };
     println!(
-        "| fixes | gate | batch held-out RMSE m | batch max m | real-time RMSE m | real-time max m | fixes inflated / used |\n|---|---|---|---|---|---|---|"
+        "| fixes | gate | batch held-out RMSE m | batch max m | real-time RMSE m | real-time max m | fixes inflated batch, real time / used | jumped fixes inflated batch, real time |\n|---|---|---|---|---|---|---|---|"
     );
     for (fname, faults) in
         [("clean", Faults::default()), ("20 % jumps 10-20 m", jumps), ("2 x 60 s dropouts", drops), ("jumps + dropouts", both)]
@@ -186,13 +186,24 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
             let r = kitti_run::run_graph(data, &sc, &cfg)?;
             let b = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch));
             let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime));
+            let jumped_t: Vec<f64> = sc.epochs.iter().filter(|e| e.jumped).map(|e| e.t_s).collect();
+            let node_of = |t: f64| r.times.iter().position(|x| (x - t).abs() < 1e-9);
+            let jumped_nodes: Vec<usize> = jumped_t.iter().filter_map(|t| node_of(*t)).collect();
+            let jb = r
+                .factors
+                .iter()
+                .filter(|f| matches!(f, subnav_fgo::factors::Factor::Usbl(u) if u.kappa > 1.0 && jumped_nodes.contains(&u.node)))
+                .count();
+            let jr = r.gate_log.decisions.iter().filter(|d| d.abnormal && jumped_t.iter().any(|t| (t - d.t_s).abs() < 1e-9)).count();
             println!(
-                "| {fname} | {gname} | {:.3} | {:.3} | {:.3} | {:.3} | {} / {used} |",
+                "| {fname} | {gname} | {:.3} | {:.3} | {:.3} | {:.3} | {}, {} / {used} | {jb}, {jr} / {} |",
                 b.rmse_heldout_m,
                 b.max_heldout_m,
                 t.rmse_heldout_m,
                 t.max_heldout_m,
-                r.fixes_inflated()
+                r.batch_inflated,
+                r.fixes_inflated(),
+                jumped_t.len()
             );
         }
     }

@@ -139,6 +139,66 @@ pub fn gate_scaled(
     Ok(Decision { t_s, sensor, gamma, threshold, kappa, abnormal, scale })
 }
 
+/// Batch re-decision of the USBL fixes (adaptive mode): the smoother's real-time inflations are
+/// undone and each fix is tested on its *posterior* residual, i.e. against the solved
+/// trajectory that all the other observations shape, not against a prediction from the past:
+/// `gamma = r^T R^-1 r` at the batch optimum, divided by the robust scale `s = max(1,
+/// median(gamma) / median(chi2(3)))` of all fixes; abnormal fixes get `kappa = gamma / (s
+/// threshold)` and the batch is solved again, once (see the comment in the body).
+/// Returns the last LM report and the number of fixes inflated.
+pub fn robust_batch(
+    nodes: &mut [crate::state::NodeState],
+    factors: &mut [crate::factors::Factor],
+    cfg: &GatingConfig,
+    opts: &crate::solver::LmOptions,
+) -> Result<(crate::solver::LmReport, usize), FgoError> {
+    use crate::factors::Factor;
+    let thr = chi2_quantile(3, cfg.confidence)?;
+    let median3 = chi2_quantile(3, 0.5)?;
+    for f in factors.iter_mut() {
+        if let Factor::Usbl(u) = f {
+            u.noise = u.noise.scaled(1.0 / u.kappa);
+            u.kappa = 1.0;
+        }
+    }
+    let nominal: Vec<Option<DMatrix<f64>>> =
+        factors.iter().map(|f| if let Factor::Usbl(u) = f { Some(u.noise.whitener.clone()) } else { None }).collect();
+    let mut report = crate::solver::solve_lm(nodes, factors, opts)?;
+    // One decision round. Iterating (re-test at the re-solved optimum) runs away on KITTI: an
+    // inflated fix lets the trajectory move off it, its residual grows, more fixes are inflated
+    // (clean run: largest gamma 127 -> 456 -> 1524 -> 2268 over four rounds; 3.75 m held-out
+    // RMSE instead of 2.02 m with one round).
+    let mut gammas = Vec::new();
+    for (f, w) in factors.iter().zip(&nominal) {
+        if let (Factor::Usbl(u), Some(w)) = (f, w) {
+            let x = nodes.get(u.node).ok_or_else(|| FgoError::Input(format!("USBL factor on missing node {}", u.node)))?;
+            gammas.push((w * u.evaluate(x).residual).norm_squared());
+        }
+    }
+    if gammas.is_empty() {
+        return Ok((report, 0));
+    }
+    let mut sorted = gammas.clone();
+    sorted.sort_by(|a, b| a.total_cmp(b));
+    let n = sorted.len();
+    let med = if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) };
+    let s = (med / median3).max(1.0);
+    let kappas: Vec<f64> = gammas.iter().map(|g| if g / s > thr { g / (s * thr) } else { 1.0 }).collect();
+    let inflated = kappas.iter().filter(|k| **k > 1.0).count();
+    if inflated > 0 {
+        let mut it = kappas.iter();
+        for f in factors.iter_mut() {
+            if let Factor::Usbl(u) = f {
+                let k = *it.next().ok_or_else(|| FgoError::Numeric("fix count changed".into()))?;
+                u.noise = u.noise.scaled(k);
+                u.kappa = k;
+            }
+        }
+        report = crate::solver::solve_lm(nodes, factors, opts)?;
+    }
+    Ok((report, inflated))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

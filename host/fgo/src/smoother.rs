@@ -230,7 +230,10 @@ impl Smoother {
         if d.kappa != 1.0 {
             match &mut f {
                 Factor::Dvl(x) => x.noise = x.noise.scaled(d.kappa),
-                Factor::Usbl(x) => x.noise = x.noise.scaled(d.kappa),
+                Factor::Usbl(x) => {
+                    x.noise = x.noise.scaled(d.kappa);
+                    x.kappa = d.kappa;
+                }
                 _ => {}
             }
         }
@@ -377,6 +380,7 @@ impl Smoother {
             pos_enu_m,
             lever_body_m: Vector3::from(self.conf.usbl_lever_body_m),
             noise: Noise::from_sigmas(&[sigma_h_m, sigma_h_m, sigma_v_m])?,
+            kappa: 1.0,
         });
         self.gated_add(t_valid, Sensor::Usbl, f, k)?;
         self.optimize_and_marginalize()?;
@@ -464,11 +468,15 @@ pub fn run(log: &SensorLog, cfg: SmootherConfig, batch: bool, mut progress: impl
         }
         progress(n + 1, total);
     }
-    let (mut est, factors) = sm.batch_problem();
+    let (mut est, mut factors) = sm.batch_problem();
     let mut report = None;
     if batch {
         let mut nodes: Vec<NodeState> = est.iter().map(|e| e.state).collect();
-        report = Some(solver::solve_lm(&mut nodes, &factors, &LmOptions::default())?);
+        report = Some(if cfg.gating.enabled && cfg.gating.adaptive {
+            gating::robust_batch(&mut nodes, &mut factors, &cfg.gating, &LmOptions::default())?.0
+        } else {
+            solver::solve_lm(&mut nodes, &factors, &LmOptions::default())?
+        });
         for (e, x) in est.iter_mut().zip(nodes) {
             e.state = x;
         }
