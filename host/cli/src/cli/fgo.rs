@@ -111,6 +111,9 @@ pub enum Sub {
         /// Estimate a range bias per beacon (zero-mean prior, sigma 10 m).
         #[arg(long)]
         range_bias: bool,
+        /// Multiply the file's odometry covariances by this (a DVL/INS noise model that is too tight).
+        #[arg(long, default_value_t = 1.0)]
+        odometry_cov_scale: f64,
         /// Scale the odometry and range noise to the data (robust variance components) before gating.
         #[arg(long)]
         adapt_noise: bool,
@@ -242,10 +245,14 @@ struct PyfgOpts {
     confidence: f64,
     range_bias: bool,
     adapt_noise: bool,
+    odometry_cov_scale: f64,
 }
 
 fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format: Format) -> Result<ExitCode> {
-    let PyfgOpts { beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise } = *o;
+    let PyfgOpts { beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, odometry_cov_scale } = *o;
+    if !(odometry_cov_scale > 0.0 && odometry_cov_scale.is_finite()) {
+        bail!("--odometry-cov-scale must be a finite number > 0");
+    }
     use subnav_fgo::range2d::{Beacons, Graph2, Init, LmOptions2, RangeGate, ape_rigid_2d};
     let bpath = beacons_path(out);
     subnav_link::output::refuse_input_as_output("--out", out, &[input])?;
@@ -273,6 +280,9 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
     let mut g = Graph2::from_pyfg(&fg, mode, init).with_context(|| format!("setting up {}", input.display()))?;
     if range_bias {
         g = g.with_range_bias();
+    }
+    for o in &mut g.odometry {
+        o.3 *= odometry_cov_scale;
     }
     let noise_scale = if adapt_noise { Some(g.adapt_noise(&LmOptions2::default(), 30)?) } else { None };
     let gate = RangeGate { enabled: !no_gating, confidence, adaptive: !fixed_gate, ..Default::default() };
@@ -303,7 +313,7 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
         "ranges_inflated": summary.inflated, "gate_rounds": summary.rounds, "gate_scale": summary.scale,
         "range_residual_m": {"rms": rms, "median_abs": pct(0.5), "p95_abs": pct(0.95), "max_abs": abs.last()},
         "lm_iterations": report.iterations, "initial_cost": report.initial_cost, "final_cost": report.final_cost,
-        "solve_s": solve_s, "noise_scale": noise_scale, "range_bias_m": g.range_bias_m, "ape_rmse_m": ape.map(|a| a.0), "ape_max_m": ape.map(|a| a.1),
+        "solve_s": solve_s, "noise_scale": noise_scale, "odometry_cov_scale": odometry_cov_scale, "range_bias_m": g.range_bias_m, "ape_rmse_m": ape.map(|a| a.0), "ape_max_m": ape.map(|a| a.1),
     });
     match format {
         Format::Json => println!("{summary_json}"),
@@ -355,8 +365,8 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match args.command {
-        Sub::Pyfg { input, out, beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, truth } => {
-            let opts = PyfgOpts { beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise };
+        Sub::Pyfg { input, out, beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, odometry_cov_scale, truth } => {
+            let opts = PyfgOpts { beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, odometry_cov_scale };
             run_pyfg(&input, &out, &opts, truth.as_deref(), format)
         }
         Sub::Simulate { out, truth, seed, duration_s, abnormal_fraction } => {
