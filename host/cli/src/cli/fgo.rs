@@ -307,6 +307,11 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
         Some(r) => Some(ape_rigid_2d(&g.poses.iter().map(|p| p.t()).collect::<Vec<_>>(), r)?),
         None => None,
     };
+    // the odometry alone (dead reckoning from the first vertex), for comparison
+    let ape_dr = match &reference {
+        Some(r) => Some(ape_rigid_2d(&subnav_fgo::range2d::dead_reckoning(&fg)?.iter().map(|p| p.t()).collect::<Vec<_>>(), r)?),
+        None => None,
+    };
     let summary_json = serde_json::json!({
         "poses": g.poses.len(), "beacons": g.beacons.len(), "odometry": g.odometry.len(), "ranges": e.len(),
         "beacons_mode": format!("{beacons:?}").to_lowercase(), "gating": !no_gating, "adaptive_gate": !fixed_gate,
@@ -314,6 +319,7 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
         "range_residual_m": {"rms": rms, "median_abs": pct(0.5), "p95_abs": pct(0.95), "max_abs": abs.last()},
         "lm_iterations": report.iterations, "initial_cost": report.initial_cost, "final_cost": report.final_cost,
         "solve_s": solve_s, "noise_scale": noise_scale, "odometry_cov_scale": odometry_cov_scale, "range_bias_m": g.range_bias_m, "ape_rmse_m": ape.map(|a| a.0), "ape_max_m": ape.map(|a| a.1),
+        "dead_reckoning_ape_rmse_m": ape_dr.map(|a| a.0),
     });
     match format {
         Format::Json => println!("{summary_json}"),
@@ -357,6 +363,9 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
             }
             if let Some((rmse, max)) = ape {
                 println!("APE after a rigid 2-D fit: rmse {rmse:.3} m, max {max:.3} m");
+            }
+            if let Some((rmse, max)) = ape_dr {
+                println!("dead reckoning (odometry only), same fit: rmse {rmse:.3} m, max {max:.3} m");
             }
         }
     }
