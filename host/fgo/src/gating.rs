@@ -44,6 +44,8 @@ pub const ADAPT_MIN: usize = 5;
 pub enum Sensor {
     Dvl,
     Usbl,
+    /// LBL / single-beacon range.
+    Range,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
