@@ -147,7 +147,8 @@ pub fn gate_scaled(
 /// `gamma = r^T R^-1 r` at the batch optimum, divided by the robust scale `s = max(1,
 /// median(gamma) / median(chi2(3)))` of all fixes; abnormal fixes get `kappa = gamma / (s
 /// threshold)` and the batch is solved again, once (see the comment in the body).
-/// Returns the last LM report and the number of fixes inflated.
+/// Returns the LM report of both solves together (the final problem's cost at the given nodes
+/// and at the optimum) and the number of fixes inflated.
 pub fn robust_batch(
     nodes: &mut [crate::state::NodeState],
     factors: &mut [crate::factors::Factor],
@@ -165,6 +166,7 @@ pub fn robust_batch(
     }
     let nominal: Vec<Option<DMatrix<f64>>> =
         factors.iter().map(|f| if let Factor::Usbl(u) = f { Some(u.noise.whitener.clone()) } else { None }).collect();
+    let initial = nodes.to_vec();
     let mut report = crate::solver::solve_lm(nodes, factors, opts)?;
     // One decision round. Iterating (re-test at the re-solved optimum) runs away on KITTI: an
     // inflated fix lets the trajectory move off it, its residual grows, more fixes are inflated
@@ -196,7 +198,15 @@ pub fn robust_batch(
                 u.kappa = k;
             }
         }
-        report = crate::solver::solve_lm(nodes, factors, opts)?;
+        let second = crate::solver::solve_lm(nodes, factors, opts)?;
+        // one report for both solves: the final problem's cost at the batch's initial values,
+        // and at its optimum
+        report = crate::solver::LmReport {
+            iterations: report.iterations + second.iterations,
+            initial_cost: crate::solver::total_cost(&initial, factors)?,
+            final_cost: second.final_cost,
+            converged: second.converged,
+        };
     }
     Ok((report, inflated))
 }
