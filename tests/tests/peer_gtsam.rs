@@ -170,6 +170,7 @@ fn batch_lm_agrees_with_gtsam() {
                 n_prior += 1;
             }
             Factor::Marginal(_) => panic!("batch problem must not contain marginal priors"),
+            Factor::Range(_) => panic!("the simulated mission has no range factors"),
         }
     }
     assert_eq!(n_prior, 1);

@@ -13,6 +13,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("fgo replay", "JSON-lines sensor log"),
     ("fgo simulate", "simulated AUV mission"),
     ("fgo monte-carlo", "gated vs ungated"),
+    ("fgo pyfg", "PyFactorGraph"),
     ("decode", "Decode telemetry"),
     ("qemu", "Boot a firmware ELF in QEMU"),
     ("bathy", "Bathymetric graph SLAM"),

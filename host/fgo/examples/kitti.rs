@@ -3,7 +3,9 @@
 //! the navigation filter, and gated vs ungated with injected jumps and dropouts.
 //!
 //! `SUBNAV_PEER_PYTHON=<venv>/bin/python cargo run --release -p subnav-fgo --example kitti
-//! [-- --duration-s S] [--fix-every K]`
+//! [-- --duration-s S] [--fix-every K] [--gates-only]`
+//! `--gates-only`: only the gate table (graph, seed's fixed gate vs adaptive vs off; no peer, no
+//! filter).
 //! The data is read from that python's installed gtsam wheel (never copied).
 
 use std::path::PathBuf;
@@ -29,6 +31,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         base.fix_every = k.parse()?;
     }
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/peers/gtsam_kitti.py");
+    if std::env::args().any(|a| a == "--gates-only") {
+        return gate_table(&data, &base);
+    }
 
     // 1. graph vs GTSAM, clean fixes
     let sc = kitti_run::scenario(&data, &base)?;
@@ -153,6 +158,53 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 ),
                 Err(e) => println!("| {fname} | filter | {on} | error: {e} | | | | | | |"),
             }
+        }
+    }
+    Ok(())
+}
+
+/// Graph only: the seed's fixed gate, the adaptive gate and no gate, batch and real time, clean
+/// and with injected faults.
+fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn std::error::Error>> {
+    let jumps = Faults { jump_probability: 0.2, jump_m: 20.0, seed: 1, ..Default::default() };
+    let drops = Faults { dropouts_s: vec![(100.0, 160.0), (300.0, 360.0)], seed: 1, ..Default::default() };
+    let both = Faults { dropouts_s: drops.dropouts_s.clone(), ..jumps.clone() };
+    println!(
+        "| fixes | gate | batch held-out RMSE m | batch max m | real-time RMSE m | real-time max m | fixes inflated batch, real time / used | jumped fixes inflated batch, real time |\n|---|---|---|---|---|---|---|---|"
+    );
+    for (fname, faults) in
+        [("clean", Faults::default()), ("20 % jumps 10-20 m", jumps), ("2 x 60 s dropouts", drops), ("jumps + dropouts", both)]
+    {
+        for (gname, gating) in [
+            ("seed (fixed chi2)", GatingConfig { enabled: true, adaptive: false, ..Default::default() }),
+            ("adaptive", GatingConfig::default()),
+            ("off", GatingConfig { enabled: false, ..Default::default() }),
+        ] {
+            let cfg = KittiConfig { faults: faults.clone(), gating, ..base.clone() };
+            let sc = kitti_run::scenario(data, &cfg)?;
+            let used = sc.epochs.iter().filter(|e| e.role == kitti_run::Role::Used).count();
+            let r = kitti_run::run_graph(data, &sc, &cfg)?;
+            let b = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch));
+            let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime));
+            let jumped_t: Vec<f64> = sc.epochs.iter().filter(|e| e.jumped).map(|e| e.t_s).collect();
+            let node_of = |t: f64| r.times.iter().position(|x| (x - t).abs() < 1e-9);
+            let jumped_nodes: Vec<usize> = jumped_t.iter().filter_map(|t| node_of(*t)).collect();
+            let jb = r
+                .factors
+                .iter()
+                .filter(|f| matches!(f, subnav_fgo::factors::Factor::Usbl(u) if u.kappa > 1.0 && jumped_nodes.contains(&u.node)))
+                .count();
+            let jr = r.gate_log.decisions.iter().filter(|d| d.abnormal && jumped_t.iter().any(|t| (t - d.t_s).abs() < 1e-9)).count();
+            println!(
+                "| {fname} | {gname} | {:.3} | {:.3} | {:.3} | {:.3} | {}, {} / {used} | {jb}, {jr} / {} |",
+                b.rmse_heldout_m,
+                b.max_heldout_m,
+                t.rmse_heldout_m,
+                t.max_heldout_m,
+                r.batch_inflated,
+                r.fixes_inflated(),
+                jumped_t.len()
+            );
         }
     }
     Ok(())

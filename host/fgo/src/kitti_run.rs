@@ -216,6 +216,9 @@ pub struct GraphRun {
     pub times: Vec<f64>,
     pub factors: Vec<Factor>,
     pub gate_log: GateLog,
+    /// Fixes inflated in the batch problem (the smoother's decisions, or the adaptive gate's
+    /// batch re-decision, [`super::gating::robust_batch`]).
+    pub batch_inflated: usize,
     pub batch_report: LmReport,
     /// Thread CPU time of all smoother updates, and of the batch LM, s.
     pub smoother_cpu_s: f64,
@@ -271,7 +274,7 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     }
     let smoother_wall_s = t_start.elapsed().as_secs_f64();
     let smoother_cpu_s = sm.cpu_s.iter().sum();
-    let (est, factors) = sm.batch_problem();
+    let (est, mut factors) = sm.batch_problem();
     if est.len() != sc.epochs.len() {
         return Err(FgoError::Numeric(format!("{} nodes for {} epochs", est.len(), sc.epochs.len())));
     }
@@ -280,7 +283,11 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     let mut batch = initial.clone();
     let t_b = std::time::Instant::now();
     let c0 = thread_cpu_s();
-    let batch_report = solver::solve_lm(&mut batch, &factors, &batch_lm_options())?;
+    let (batch_report, batch_inflated) = if cfg.gating.enabled && cfg.gating.adaptive {
+        super::gating::robust_batch(&mut batch, &mut factors, &cfg.gating, &batch_lm_options())?
+    } else {
+        (solver::solve_lm(&mut batch, &factors, &batch_lm_options())?, sm.gate_log.count(Sensor::Usbl, true))
+    };
     let batch_cpu_s = match (c0, thread_cpu_s()) {
         (Some(a), Some(b)) => b - a,
         _ => f64::NAN,
@@ -293,6 +300,7 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         times,
         factors,
         gate_log: sm.gate_log,
+        batch_inflated,
         batch_report,
         smoother_cpu_s,
         batch_cpu_s,

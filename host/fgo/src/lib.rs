@@ -3,14 +3,18 @@
 //! Nouns, one file each: [`state`] (node state in ENU with an FLU body, and the conversion to the
 //! project's NED/FRD convention), [`preintegration`] (Forster on-manifold IMU preintegration in
 //! GTSAM 4.3's tangent form, bias Jacobians, covariance), [`factors`] (IMU + bias random walk,
-//! DVL, USBL, priors; one file per sensor), [`gating`] (Mahalanobis test, covariance inflation,
-//! decision log), [`solver`] (batch Levenberg-Marquardt on a sparse Cholesky), [`smoother`]
+//! DVL, USBL, LBL range, priors; one file per sensor), [`gating`] (Mahalanobis test with an
+//! adaptive robust scale, covariance inflation, decision log, batch re-decision), [`solver`] (batch Levenberg-Marquardt on a sparse Cholesky), [`smoother`]
 //! (fixed-lag smoother for real time; it also makes the gating decisions and hands the batch
 //! problem over), [`sim`] (AUV mission simulator with truth), [`log`] (the JSON-lines sensor log
-//! of `subnav fgo`), [`montecarlo`] and [`ukf_baseline`] (evaluation).
+//! of `subnav fgo`), [`montecarlo`] and [`ukf_baseline`] (evaluation), [`kitti`] /
+//! [`kitti_run`] (real car data), and the range-aided 2-D pose graph of a real AUV (GOATS):
+//! [`pyfg`] (PyFactorGraph text reader) and [`range2d`] (SE2 odometry + ranges to known or
+//! unknown beacons, gated, solved by LM).
 //!
 //! Checked against GTSAM 4.3 (PyPI) in `tests/tests/peer_gtsam.rs`: preintegration to 1e-9,
-//! batch optimum to 1e-6 m. Figures in docs/PERFORMANCE.md ("Factor-graph INS/DVL/USBL").
+//! batch optimum to 1e-6 m; the GOATS pose graph in `tests/tests/peer_gtsam_pyfg.rs`. Figures in
+//! docs/PERFORMANCE.md ("Factor-graph INS/DVL/USBL", "Real data: KITTI", "Real AUV data: GOATS").
 //!
 //! Solver choice. Evaluated first (crates.io metadata and docs): factrs 0.3 (faer 0.23 + faer-ext
 //! + num-dual + statrs + a proc-macro crate), tiny-solver 0.18 (faer 0.23 + faer-ext + num-dual +
@@ -34,6 +38,8 @@ pub mod kitti_run;
 pub mod log;
 pub mod montecarlo;
 pub mod preintegration;
+pub mod pyfg;
+pub mod range2d;
 pub mod sim;
 pub mod smoother;
 pub mod solver;

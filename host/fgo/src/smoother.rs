@@ -19,7 +19,7 @@ use std::time::Instant;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::FgoError;
-use super::factors::{BiasRandomWalkFactor, DvlFactor, Factor, ImuFactor, MarginalPrior, Noise, PriorFactor, UsblFactor};
+use super::factors::{BiasRandomWalkFactor, DvlFactor, Factor, ImuFactor, MarginalPrior, Noise, PriorFactor, RangeFactor, UsblFactor};
 use super::gating::{self, GateLog, GatingConfig, Sensor};
 use super::log::{ImuSample, LogConfig, SensorLog};
 use super::preintegration::Preintegrated;
@@ -222,14 +222,20 @@ impl Smoother {
         let cov = match &f {
             Factor::Dvl(d) => d.noise.cov.clone(),
             Factor::Usbl(u) => u.noise.cov.clone(),
-            _ => return Err(FgoError::Input("only DVL/USBL factors are gated".into())),
+            Factor::Range(r) => r.noise.cov.clone(),
+            _ => return Err(FgoError::Input("only DVL/USBL/range factors are gated".into())),
         };
         let h = &e.jacobians[0];
-        let d = gating::gate(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating)?;
+        let scale = if self.cfg.gating.adaptive { self.gate_log.adaptive_scale(sensor, e.residual.len())? } else { 1.0 };
+        let d = gating::gate_scaled(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating, scale)?;
         if d.kappa != 1.0 {
             match &mut f {
                 Factor::Dvl(x) => x.noise = x.noise.scaled(d.kappa),
-                Factor::Usbl(x) => x.noise = x.noise.scaled(d.kappa),
+                Factor::Usbl(x) => {
+                    x.noise = x.noise.scaled(d.kappa);
+                    x.kappa = d.kappa;
+                }
+                Factor::Range(x) => x.noise = x.noise.scaled(d.kappa),
                 _ => {}
             }
         }
@@ -376,8 +382,38 @@ impl Smoother {
             pos_enu_m,
             lever_body_m: Vector3::from(self.conf.usbl_lever_body_m),
             noise: Noise::from_sigmas(&[sigma_h_m, sigma_h_m, sigma_v_m])?,
+            kappa: 1.0,
         });
         self.gated_add(t_valid, Sensor::Usbl, f, k)?;
+        self.optimize_and_marginalize()?;
+        self.latency_s.push(start.elapsed().as_secs_f64());
+        if let (Some(a), Some(b)) = (cpu0, thread_cpu_s()) {
+            self.cpu_s.push(b - a);
+        }
+        Ok(())
+    }
+
+    /// One range update: the range (m) at `t` from the vehicle's transducer (lever arm `lever_body_m`)
+    /// to a beacon at `beacon_enu_m` (known, surveyed), gated like a USBL fix.
+    pub fn add_range(
+        &mut self,
+        t: f64,
+        beacon_enu_m: Vector3<f64>,
+        range_m: f64,
+        sigma_m: f64,
+        lever_body_m: Vector3<f64>,
+    ) -> Result<(), FgoError> {
+        if !(range_m.is_finite() && range_m >= 0.0) || !beacon_enu_m.iter().all(|x| x.is_finite()) {
+            return Err(FgoError::Input(format!("range at t={t}: range {range_m} / beacon {beacon_enu_m:?} not finite or negative")));
+        }
+        let start = Instant::now();
+        let cpu0 = thread_cpu_s();
+        let Some(k) = self.node_at(t)? else {
+            self.gate_log.dropped_too_old += 1;
+            return Ok(());
+        };
+        let f = Factor::Range(RangeFactor { node: k, beacon_enu_m, range_m, lever_body_m, noise: Noise::from_sigmas(&[sigma_m])? });
+        self.gated_add(t, Sensor::Range, f, k)?;
         self.optimize_and_marginalize()?;
         self.latency_s.push(start.elapsed().as_secs_f64());
         if let (Some(a), Some(b)) = (cpu0, thread_cpu_s()) {
@@ -463,11 +499,15 @@ pub fn run(log: &SensorLog, cfg: SmootherConfig, batch: bool, mut progress: impl
         }
         progress(n + 1, total);
     }
-    let (mut est, factors) = sm.batch_problem();
+    let (mut est, mut factors) = sm.batch_problem();
     let mut report = None;
     if batch {
         let mut nodes: Vec<NodeState> = est.iter().map(|e| e.state).collect();
-        report = Some(solver::solve_lm(&mut nodes, &factors, &LmOptions::default())?);
+        report = Some(if cfg.gating.enabled && cfg.gating.adaptive {
+            gating::robust_batch(&mut nodes, &mut factors, &cfg.gating, &LmOptions::default())?.0
+        } else {
+            solver::solve_lm(&mut nodes, &factors, &LmOptions::default())?
+        });
         for (e, x) in est.iter_mut().zip(nodes) {
             e.state = x;
         }
@@ -537,5 +577,50 @@ mod tests {
         // bad input is an error, not a panic
         assert!(sm.push_imu(sim.log.imu[0]).is_err());
         assert!(sm.add_dvl(1e9, Vector3::zeros(), 0.01).is_err());
+    }
+
+    /// IMU + DVL with ranges to three known beacons (3-D range factors, every 5 s, one of them
+    /// 30 m off): the ranges pull the dead-reckoned drift in, and the wrong one is gated.
+    #[test]
+    fn ranges_to_known_beacons_bound_the_drift_and_an_outlier_is_gated() {
+        let sim = simulate(&SimConfig { duration_s: 120.0, seed: 5, abnormal_fraction: 0.0, dvl_lock_losses: 0, ..Default::default() });
+        let beacons = [Vector3::new(150.0, 50.0, -80.0), Vector3::new(-60.0, 120.0, -80.0), Vector3::new(40.0, -140.0, -80.0)];
+        let t0 = sim.log.config.prior.t_s;
+        let mut err = Vec::new();
+        for with_ranges in [false, true] {
+            let mut sm = Smoother::new(sim.log.config, SmootherConfig::default()).unwrap();
+            for s in &sim.log.imu {
+                sm.push_imu(*s).unwrap();
+            }
+            let mut next_range = t0 + 5.0;
+            let mut k = 0;
+            let mut outlier_t = f64::NAN;
+            for d in sim.log.dvl.iter().filter(|d| d.t_s > t0) {
+                if with_ranges && d.t_s >= next_range {
+                    let t = next_range;
+                    let b = beacons[k % 3];
+                    let mut r = (sim.truth.at(t).pos_enu_m - b).norm() + 0.2 * ((k as f64) * 1.7).sin();
+                    if k == 12 {
+                        r += 30.0;
+                        outlier_t = t;
+                    }
+                    sm.add_range(t, b, r, 0.3, Vector3::zeros()).unwrap();
+                    next_range += 5.0;
+                    k += 1;
+                }
+                sm.add_dvl(d.t_s, Vector3::from(d.vel_dvl_mps), d.sigma_mps).unwrap();
+            }
+            let last = sm.realtime.last().unwrap();
+            err.push((last.state.nav.pos_enu_m - sim.truth.at(last.t_s).pos_enu_m).norm());
+            if with_ranges {
+                let flagged: Vec<f64> =
+                    sm.gate_log.decisions.iter().filter(|d| d.sensor == Sensor::Range && d.abnormal).map(|d| d.t_s).collect();
+                assert!(flagged.iter().any(|t| (t - outlier_t).abs() < 1e-9), "outlier at {outlier_t} not flagged: {flagged:?}");
+                assert!(flagged.len() <= 2, "clean ranges flagged: {flagged:?}");
+                assert!(sm.add_range(1.0e9, beacons[0], f64::NAN, 0.3, Vector3::zeros()).is_err());
+            }
+        }
+        eprintln!("final position error: IMU+DVL {:.3} m, + ranges {:.3} m", err[0], err[1]);
+        assert!(err[1] < err[0] && err[1] < 1.0, "{err:?}");
     }
 }

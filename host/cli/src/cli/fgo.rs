@@ -7,6 +7,11 @@
 //!   and attitude of the project convention. `--decisions FILE` writes every gating decision.
 //! - `subnav fgo simulate --out LOG`: a simulated mission log (and `--truth CSV`).
 //! - `subnav fgo monte-carlo --seeds 1..=100`: gated vs ungated vs the shared-UKF filter, latency.
+//! - `subnav fgo pyfg --input FILE --out TRAJ.csv [--beacons known|unknown] [--no-gating]`: a
+//!   range-aided 2-D problem in the PyFactorGraph text format (`subnav_fgo::pyfg`, e.g. GOATS):
+//!   writes `key,x_m,y_m,theta_rad` per pose and the beacons to `TRAJ.beacons.csv` (both only once
+//!   solved); prints the range residual statistics and how many ranges the gate inflated, and
+//!   with `--truth PYFG` the APE after a rigid 2-D fit against that file's pose vertices.
 
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Write};
@@ -78,6 +83,44 @@ pub enum Sub {
         #[arg(long, default_value_t = 0.1)]
         abnormal_fraction: f64,
     },
+    /// Range-aided 2-D navigation from a PyFactorGraph text file (SE2 odometry + ranges to beacons).
+    Pyfg {
+        /// Input .pyfg file (VERTEX_SE2, VERTEX_XY, EDGE_SE2, EDGE_RANGE lines).
+        #[arg(long)]
+        input: PathBuf,
+        /// Output trajectory CSV: key,x_m,y_m,theta_rad. Beacons go to the same name with
+        /// `.beacons.csv` in place of the extension.
+        #[arg(long)]
+        out: PathBuf,
+        /// Beacons known (the file's VERTEX_XY positions, fixed) or unknown (estimated).
+        #[arg(long, value_enum, default_value_t = BeaconsArg::Known)]
+        beacons: BeaconsArg,
+        /// Initial guess of the poses: the odometry composed from the first pose vertex, or the
+        /// file's pose vertices.
+        #[arg(long, value_enum, default_value_t = InitArg::Odometry)]
+        init: InitArg,
+        /// Disable the range gate (every range keeps its variance).
+        #[arg(long)]
+        no_gating: bool,
+        /// The seed's fixed chi-square test instead of the adaptive one (for comparison).
+        #[arg(long)]
+        fixed_gate: bool,
+        /// Confidence of the chi-square gate.
+        #[arg(long, default_value_t = 0.99)]
+        confidence: f64,
+        /// Estimate a range bias per beacon (zero-mean prior, sigma 10 m).
+        #[arg(long)]
+        range_bias: bool,
+        /// Multiply the file's odometry covariances by this (a DVL/INS noise model that is too tight).
+        #[arg(long, default_value_t = 1.0)]
+        odometry_cov_scale: f64,
+        /// Scale the odometry and range noise to the data (robust variance components) before gating.
+        #[arg(long)]
+        adapt_noise: bool,
+        /// A .pyfg file whose pose vertices are the reference trajectory (same keys): print the APE.
+        #[arg(long)]
+        truth: Option<PathBuf>,
+    },
     /// Seeded Monte Carlo: gated vs ungated graph vs shared-UKF filter; smoother latency.
     MonteCarlo {
         /// Seeds of the simulated missions: `N`, `A..B` (B exclusive) or `A..=B`.
@@ -96,6 +139,18 @@ pub enum Sub {
         #[arg(long)]
         quiet: bool,
     },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BeaconsArg {
+    Known,
+    Unknown,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum InitArg {
+    Odometry,
+    File,
 }
 
 fn bar(len: u64, quiet: bool, what: &str) -> ProgressBar {
@@ -176,8 +231,153 @@ fn write_estimates(path: &Path, est: &[Estimate]) -> Result<()> {
     Ok(())
 }
 
+fn beacons_path(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    out.with_file_name(format!("{stem}.beacons.csv"))
+}
+
+#[derive(Clone, Copy)]
+struct PyfgOpts {
+    beacons: BeaconsArg,
+    init: InitArg,
+    no_gating: bool,
+    fixed_gate: bool,
+    confidence: f64,
+    range_bias: bool,
+    adapt_noise: bool,
+    odometry_cov_scale: f64,
+}
+
+fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format: Format) -> Result<ExitCode> {
+    let PyfgOpts { beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, odometry_cov_scale } = *o;
+    if !(odometry_cov_scale > 0.0 && odometry_cov_scale.is_finite()) {
+        bail!("--odometry-cov-scale must be a finite number > 0");
+    }
+    use subnav_fgo::range2d::{Beacons, Graph2, Init, LmOptions2, RangeGate, ape_rigid_2d};
+    let bpath = beacons_path(out);
+    subnav_link::output::refuse_input_as_output("--out", out, &[input])?;
+    subnav_link::output::refuse_input_as_output("the beacons file", &bpath, &[input])?;
+    if !(confidence > 0.0 && confidence < 1.0) {
+        bail!("--confidence must be in (0, 1)");
+    }
+    let fg = subnav_fgo::pyfg::PyFg::read(input)?;
+    // the reference, read before solving so that a bad file fails before anything is written
+    let reference = match truth {
+        Some(t) => {
+            let r = subnav_fgo::pyfg::PyFg::read(t)?;
+            let mut pos = Vec::with_capacity(fg.poses.len());
+            for p in &fg.poses {
+                let q = r.poses.iter().find(|q| q.name == p.name).with_context(|| format!("{}: no pose {}", t.display(), p.name))?;
+                pos.push(q.guess.t());
+            }
+            Some(pos)
+        }
+        None => None,
+    };
+    let mode = if beacons == BeaconsArg::Known { Beacons::Known } else { Beacons::Unknown };
+    let init = if init == InitArg::File { Init::File } else { Init::Odometry };
+    let start = std::time::Instant::now();
+    let mut g = Graph2::from_pyfg(&fg, mode, init).with_context(|| format!("setting up {}", input.display()))?;
+    if range_bias {
+        g = g.with_range_bias();
+    }
+    for o in &mut g.odometry {
+        o.3 *= odometry_cov_scale;
+    }
+    let noise_scale = if adapt_noise { Some(g.adapt_noise(&LmOptions2::default(), 30)?) } else { None };
+    let gate = RangeGate { enabled: !no_gating, confidence, adaptive: !fixed_gate, ..Default::default() };
+    let (report, summary) = g.solve_gated(&gate, &LmOptions2::default()).with_context(|| format!("solving {}", input.display()))?;
+    let solve_s = start.elapsed().as_secs_f64();
+    let mut traj = String::from("key,x_m,y_m,theta_rad\n");
+    for (v, p) in fg.poses.iter().zip(&g.poses) {
+        traj += &format!("{},{},{},{}\n", v.name, p.x_m, p.y_m, p.theta_rad);
+    }
+    let mut bcsv = String::from("key,x_m,y_m,known\n");
+    for (v, b) in fg.beacons.iter().zip(&g.beacons) {
+        bcsv += &format!("{},{},{},{}\n", v.name, b.x, b.y, mode == Beacons::Known);
+    }
+    subnav_link::output::write_atomic(&bpath, bcsv.as_bytes())?;
+    subnav_link::output::write_atomic(out, traj.as_bytes())?;
+    let e = g.range_residuals_m();
+    let mut abs: Vec<f64> = e.iter().map(|x| x.abs()).collect();
+    abs.sort_by(|a, b| a.total_cmp(b));
+    let pct = |q: f64| abs.get(((abs.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(f64::NAN);
+    let rms = (e.iter().map(|x| x * x).sum::<f64>() / e.len().max(1) as f64).sqrt();
+    let ape = match &reference {
+        Some(r) => Some(ape_rigid_2d(&g.poses.iter().map(|p| p.t()).collect::<Vec<_>>(), r)?),
+        None => None,
+    };
+    // the odometry alone (dead reckoning from the first vertex), for comparison
+    let ape_dr = match &reference {
+        Some(r) => Some(ape_rigid_2d(&subnav_fgo::range2d::dead_reckoning(&fg)?.iter().map(|p| p.t()).collect::<Vec<_>>(), r)?),
+        None => None,
+    };
+    let summary_json = serde_json::json!({
+        "poses": g.poses.len(), "beacons": g.beacons.len(), "odometry": g.odometry.len(), "ranges": e.len(),
+        "beacons_mode": format!("{beacons:?}").to_lowercase(), "gating": !no_gating, "adaptive_gate": !fixed_gate,
+        "ranges_inflated": summary.inflated, "gate_rounds": summary.rounds, "gate_scale": summary.scale,
+        "range_residual_m": {"rms": rms, "median_abs": pct(0.5), "p95_abs": pct(0.95), "max_abs": abs.last()},
+        "lm_iterations": report.iterations, "initial_cost": report.initial_cost, "final_cost": report.final_cost,
+        "solve_s": solve_s, "noise_scale": noise_scale, "odometry_cov_scale": odometry_cov_scale, "range_bias_m": g.range_bias_m, "ape_rmse_m": ape.map(|a| a.0), "ape_max_m": ape.map(|a| a.1),
+        "dead_reckoning_ape_rmse_m": ape_dr.map(|a| a.0),
+    });
+    match format {
+        Format::Json => println!("{summary_json}"),
+        Format::Text => {
+            println!("wrote {} and {}", out.display(), bpath.display());
+            println!(
+                "{} poses, {} beacons ({}), {} odometry, {} ranges; LM {} iterations, cost {:.6e} -> {:.6e}, {:.3} s",
+                g.poses.len(),
+                g.beacons.len(),
+                format!("{beacons:?}").to_lowercase(),
+                g.odometry.len(),
+                e.len(),
+                report.iterations,
+                report.initial_cost,
+                report.final_cost,
+                solve_s
+            );
+            println!(
+                "range residuals m: rms {rms:.3} median |e| {:.3} p95 |e| {:.3} max |e| {:.3}",
+                pct(0.5),
+                pct(0.95),
+                abs.last().copied().unwrap_or(f64::NAN)
+            );
+            if no_gating {
+                println!("gate off");
+            } else {
+                println!(
+                    "gate ({}): {} of {} ranges inflated, {} rounds, residual scale {:.2}",
+                    if fixed_gate { "fixed chi2" } else { "adaptive" },
+                    summary.inflated,
+                    e.len(),
+                    summary.rounds,
+                    summary.scale
+                );
+            }
+            if let Some((so, sr)) = noise_scale {
+                println!("noise adapted: odometry covariance x{so:.1}, range variance x{sr:.2}");
+            }
+            if let Some(b) = &g.range_bias_m {
+                println!("range bias per beacon m: {}", b.iter().map(|x| format!("{x:.2}")).collect::<Vec<_>>().join(" "));
+            }
+            if let Some((rmse, max)) = ape {
+                println!("APE after a rigid 2-D fit: rmse {rmse:.3} m, max {max:.3} m");
+            }
+            if let Some((rmse, max)) = ape_dr {
+                println!("dead reckoning (odometry only), same fit: rmse {rmse:.3} m, max {max:.3} m");
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match args.command {
+        Sub::Pyfg { input, out, beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, odometry_cov_scale, truth } => {
+            let opts = PyfgOpts { beacons, init, no_gating, fixed_gate, confidence, range_bias, adapt_noise, odometry_cov_scale };
+            run_pyfg(&input, &out, &opts, truth.as_deref(), format)
+        }
         Sub::Simulate { out, truth, seed, duration_s, abnormal_fraction } => {
             if !(duration_s > 10.0 && duration_s.is_finite() && (0.0..1.0).contains(&abnormal_fraction)) {
                 bail!("--duration-s must be > 10 and --abnormal-fraction in [0, 1)");
@@ -263,7 +463,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             }
             let f = File::open(&input).with_context(|| format!("cannot open {}", input.display()))?;
             let log = SensorLog::read(BufReader::new(f)).with_context(|| format!("reading {}", input.display()))?;
-            let cfg = SmootherConfig { lag_s, gating: GatingConfig { enabled: !no_gating, confidence }, ..Default::default() };
+            let cfg = SmootherConfig {
+                lag_s,
+                gating: GatingConfig { enabled: !no_gating, confidence, ..Default::default() },
+                ..Default::default()
+            };
             let pb = bar((log.dvl.len() + log.usbl.len()) as u64, quiet, "smoothing");
             let res = smoother::run(&log, cfg, !realtime, |i, _| pb.set_position(i as u64))?;
             pb.finish_and_clear();

@@ -1,4 +1,5 @@
-//! Factors of the INS/DVL/USBL graph: one file per sensor (IMU + bias random walk, DVL, USBL) and
+//! Factors of the INS/DVL/USBL graph: one file per sensor (IMU + bias random walk, DVL, USBL,
+//! LBL range) and
 //! the priors. Each factor gives its residual, its Jacobians with respect to the 15-dimensional
 //! tangent of each node it touches (analytic; checked numerically in the tests) and its
 //! covariance. The solver whitens with the Cholesky factor of the covariance.
@@ -6,6 +7,7 @@
 pub mod dvl;
 pub mod imu;
 pub mod prior;
+pub mod range;
 pub mod usbl;
 
 use nalgebra::{DMatrix, DVector, SMatrix};
@@ -16,6 +18,7 @@ use super::state::NodeState;
 pub use dvl::DvlFactor;
 pub use imu::{BiasRandomWalkFactor, ImuFactor};
 pub use prior::{MarginalPrior, PriorFactor};
+pub use range::RangeFactor;
 pub use usbl::UsblFactor;
 
 /// Jacobian block of a residual with respect to one node (rows x 15).
@@ -36,6 +39,7 @@ pub enum Factor {
     BiasRw(BiasRandomWalkFactor),
     Dvl(DvlFactor),
     Usbl(UsblFactor),
+    Range(RangeFactor),
 }
 
 impl Factor {
@@ -48,6 +52,7 @@ impl Factor {
             Factor::BiasRw(f) => vec![f.node_i, f.node_j],
             Factor::Dvl(f) => vec![f.node],
             Factor::Usbl(f) => vec![f.node],
+            Factor::Range(f) => vec![f.node],
         }
     }
 
@@ -65,6 +70,7 @@ impl Factor {
             }
             Factor::Dvl(f) => f.node = map(f.node),
             Factor::Usbl(f) => f.node = map(f.node),
+            Factor::Range(f) => f.node = map(f.node),
         }
     }
 
@@ -77,6 +83,7 @@ impl Factor {
             Factor::BiasRw(f) => f.evaluate(states[0], states[1]),
             Factor::Dvl(f) => f.evaluate(states[0]),
             Factor::Usbl(f) => f.evaluate(states[0]),
+            Factor::Range(f) => f.evaluate(states[0]),
         }
     }
 
@@ -89,6 +96,7 @@ impl Factor {
             Factor::BiasRw(f) => &f.noise.whitener,
             Factor::Dvl(f) => &f.noise.whitener,
             Factor::Usbl(f) => &f.noise.whitener,
+            Factor::Range(f) => &f.noise.whitener,
         }
     }
 

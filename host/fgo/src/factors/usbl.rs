@@ -16,6 +16,8 @@ pub struct UsblFactor {
     pub pos_enu_m: Vector3<f64>,
     pub lever_body_m: Vector3<f64>,
     pub noise: Noise,
+    /// Inflation the gate applied: `noise` = the nominal noise scaled by `kappa` (1 = none).
+    pub kappa: f64,
 }
 
 impl UsblFactor {
@@ -46,6 +48,7 @@ mod tests {
             pos_enu_m: Vector3::new(100.0, 50.0, -30.0),
             lever_body_m: Vector3::new(0.3, 0.1, 0.4),
             noise: Noise::from_sigmas(&[1.0, 1.0, 0.5]).unwrap(),
+            kappa: 1.0,
         };
         let x = NodeState::new(
             NavState::new(so3::exp(&Vector3::new(0.1, 0.3, -1.0)), Vector3::new(99.0, 51.0, -29.0), Vector3::zeros()),
