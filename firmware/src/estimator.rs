@@ -63,6 +63,8 @@ const DVL_RESET_ATTITUDE_SIGMA_RAD: f32 = 0.05;
 const POSITION_TIMEOUT_FIXES: u32 = 2;
 const POSITION_TIMEOUT_S: f32 = 9.0;
 const DVL_HOLDS_POSITION_US: u64 = 5_000_000;
+/// Yaw 1-sigma (at least) after a position timeout reset.
+const POSITION_RESET_YAW_SIGMA_RAD: f32 = 0.5;
 /// Minimum mean resultant length of a consistent set of angles: 0.98 is a circular standard
 /// deviation of 11.5 deg (`sqrt(-2 ln R)`), twice the worst compass RMSE measured in the
 /// simulated dives (6.3 deg).
@@ -787,6 +789,11 @@ impl Estimator {
                 // matching in one step, bounded), instead of 1.6x a fix.
                 let ratio = (rep.nis / 3.0).clamp(1.0, 100.0);
                 nav.seed_imu_q_scale(nav.imu_q_scale() * ratio);
+                // A filter this lost has its heading wrong too (nothing else held it: no DVL,
+                // and a compass, if any, pulls it back at once): the yaw keeps its value with
+                // an honest sigma, so the next fixes can turn it.
+                let yaw_sigma = libm::sqrtf(nav.covariance().get((2, 2)).copied().unwrap_or(0.0)).max(POSITION_RESET_YAW_SIGMA_RAD);
+                let _ = nav.reset_heading(nav.nominal().yaw_rad(), yaw_sigma);
             }
             self.refused_positions = PositionRun::default();
             self.position_refused_since_us = None;
