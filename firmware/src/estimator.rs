@@ -1259,16 +1259,7 @@ mod tests {
     fn a_dvl_report_with_an_out_of_range_altitude_is_not_fused() {
         let mut e = Estimator::default();
         run(&mut e, 0.0, 3.0, |_| Some(deg(40.0)));
-        let dvl = |t_s: f32, altitude_m: f32, v: f32| DvlSample {
-            t_us: (t_s * 1e6) as u64,
-            rx_us: (t_s * 1e6) as u64,
-            tracking: DvlTracking::Bottom,
-            valid: true,
-            vel_dvl_mps: [v, 0.0, 0.0],
-            fom_mps: 0.01,
-            altitude_m,
-            covariance_m2ps2: None,
-        };
+        let dvl = |t_s: f32, altitude_m: f32, v: f32| DvlSample { altitude_m, ..dvl_with_cov(t_s, v, None) };
         for (k, alt) in [80.0, 50.5, 0.01, -1.0, f32::NAN].into_iter().enumerate() {
             run(&mut e, 3.0 + k as f32 * 0.2, 3.2 + k as f32 * 0.2, |_| Some(deg(40.0)));
             e.on_dvl(&dvl(3.2 + k as f32 * 0.2, alt, 0.5)).unwrap();

@@ -74,29 +74,40 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// fixes (a lost position, e.g. after a long DVL outage with false map fixes), as for the
     /// heading ([`NavFilter::reset_heading`]). Attitude and velocity are left alone.
     pub fn reset_position(&mut self, pos_ned_m: [f32; 3], var_ned_m2: [f32; 3]) -> Result<(), NavError> {
-        if !pos_ned_m.iter().all(|v| v.is_finite()) || !var_ned_m2.iter().all(|v| v.is_finite() && *v > 0.0) {
-            return Err(self.reject_nonfinite());
-        }
-        self.begin_update(&[])?;
-        let mut p = *self.ukf.p();
-        for (k, var) in var_ned_m2.iter().enumerate() {
-            for i in 0..N {
-                for idx in [(POS + k, i), (i, POS + k)] {
-                    if let Some(v) = p.get_mut(idx) {
-                        *v = 0.0;
-                    }
-                }
-            }
-            if let Some(v) = p.get_mut((POS + k, POS + k)) {
-                *v = *var;
-            }
-        }
-        self.ukf.set_p(p)?;
+        self.reset_block(POS, &pos_ned_m, &var_ned_m2)?;
         self.nom.pos_ned_m = Vector3::from(pos_ned_m);
         // The nominal position jumped: the recorded past is no longer the same trajectory.
         self.hist.restart(self.t_us, &self.nom);
         self.noise_pos = self.cfg.position.noise();
         self.noise_pos.k = self.cfg.ukf.adapt.k0;
+        Ok(())
+    }
+}
+
+impl<const N: usize, const S: usize> NavFilter<N, S> {
+    /// The covariance part of a reset of the 3-state block at `start` to new values: checked
+    /// (finite values, finite positive variances: else refused, counted, nothing changes), the
+    /// partial covariance interval flushed, the block's rows and columns zeroed and its
+    /// diagonal set to `var` (symmetric, PD if P was). The caller sets the nominal.
+    pub(crate) fn reset_block(&mut self, start: usize, values: &[f32; 3], var: &[f32; 3]) -> Result<(), NavError> {
+        if !values.iter().all(|v| v.is_finite()) || !var.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(self.reject_nonfinite());
+        }
+        self.begin_update(&[])?;
+        let mut p = *self.ukf.p();
+        for (k, var) in var.iter().enumerate() {
+            for i in 0..N {
+                for idx in [(start + k, i), (i, start + k)] {
+                    if let Some(v) = p.get_mut(idx) {
+                        *v = 0.0;
+                    }
+                }
+            }
+            if let Some(v) = p.get_mut((start + k, start + k)) {
+                *v = *var;
+            }
+        }
+        self.ukf.set_p(p)?;
         Ok(())
     }
 }

@@ -293,6 +293,22 @@ fn position_reset_moves_the_position_and_decorrelates_it() {
     assert_eq!(nav.reset_position([f32::NAN, 0.0, 0.0], [1.0; 3]), Err(NavError::NonFinite));
     assert_eq!(nav.reset_position([0.0; 3], [1.0, 0.0, 1.0]), Err(NavError::NonFinite));
     assert_eq!(nav.solution(), before);
+    // The velocity reset (the DVL aid's timeout): the same rules on the velocity block.
+    let pos_before = nav.nominal().pos_ned_m;
+    nav.reset_velocity([0.3, -1.2, 0.05], [0.01, 0.02, 0.03]).unwrap();
+    assert_eq!(nav.nominal().vel_ned_mps, Vector3::new(0.3, -1.2, 0.05));
+    assert_eq!(nav.nominal().pos_ned_m, pos_before, "the position is left alone");
+    let p = nav.covariance();
+    assert!(is_pd(p));
+    for (k, var) in [0.01f32, 0.02, 0.03].iter().enumerate() {
+        let i = super::state::VEL + k;
+        assert_eq!(p[(i, i)], *var);
+        assert!((0..15).filter(|&j| j != i).all(|j| p[(i, j)] == 0.0 && p[(j, i)] == 0.0));
+    }
+    let before = nav.solution();
+    assert_eq!(nav.reset_velocity([0.0, f32::INFINITY, 0.0], [1.0; 3]), Err(NavError::NonFinite));
+    assert_eq!(nav.reset_velocity([0.0; 3], [1.0, -1.0, 1.0]), Err(NavError::NonFinite));
+    assert_eq!(nav.solution(), before);
 }
 
 #[test]

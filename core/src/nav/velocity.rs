@@ -62,24 +62,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// for longer than a velocity error can honestly explain (a filter gone free-inertial), as
     /// [`NavFilter::reset_position`] is for position fixes. Refused input changes nothing.
     pub fn reset_velocity(&mut self, vel_ned_mps: [f32; 3], var_ned_m2ps2: [f32; 3]) -> Result<(), NavError> {
-        if !vel_ned_mps.iter().all(|v| v.is_finite()) || !var_ned_m2ps2.iter().all(|v| v.is_finite() && *v > 0.0) {
-            return Err(self.reject_nonfinite());
-        }
-        self.begin_update(&[])?;
-        let mut p = *self.ukf.p();
-        for (k, var) in var_ned_m2ps2.iter().enumerate() {
-            for i in 0..N {
-                for idx in [(VEL + k, i), (i, VEL + k)] {
-                    if let Some(v) = p.get_mut(idx) {
-                        *v = 0.0;
-                    }
-                }
-            }
-            if let Some(v) = p.get_mut((VEL + k, VEL + k)) {
-                *v = *var;
-            }
-        }
-        self.ukf.set_p(p)?;
+        self.reset_block(VEL, &vel_ned_mps, &var_ned_m2ps2)?;
         self.nom.vel_ned_mps = Vector3::from(vel_ned_mps);
         self.hist.restart(self.t_us, &self.nom);
         self.noise_vel = self.cfg.velocity.noise();
