@@ -327,10 +327,9 @@ pub struct NavFilter<const N: usize, const S: usize> {
     /// The IMU process-noise scale (`NavConfig::imu_q_adapt`) and the scale the UKF's `Q` holds.
     pub(crate) q_scale: NisQScale<f32>,
     pub(crate) q_scale_applied: f32,
-    /// Time of validity of the last accepted velocity update and of the last position fix seen
-    /// (for the IMU noise scale's evidence).
+    /// Time of validity of the last accepted velocity update (for the IMU noise scale's
+    /// evidence).
     pub(crate) last_vel_accepted_us: Option<u64>,
-    pub(crate) last_pos_obs_us: Option<u64>,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -372,7 +371,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             q_scale: NisQScale::default(),
             q_scale_applied: 1.0,
             last_vel_accepted_us: None,
-            last_pos_obs_us: None,
         })
     }
 
@@ -407,7 +405,6 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.q_scale = NisQScale::default();
         self.q_scale_applied = 1.0;
         self.last_vel_accepted_us = None;
-        self.last_pos_obs_us = None;
         Ok(())
     }
 
@@ -757,19 +754,18 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             *n = rep.nis;
         }
         // The velocity aid's NIS drives the IMU noise scale; position fixes only while no
-        // velocity aid works (with one, their innovations measure the slow drift, not the IMU),
-        // each counting for the seconds since the last one (at most 10).
+        // velocity aid works (with one, their innovations measure the slow drift, not the IMU).
+        // (Weighting a rare fix by the seconds since the last one was tried on KITTI: 45 m
+        // held-out RMSE against 28 m.)
         if kind == KIND_VELOCITY {
-            self.adapt_imu_q(rep.nis, 3, 1.0);
+            self.adapt_imu_q(rep.nis, 3);
             if rep.accepted {
                 self.last_vel_accepted_us = Some(t_us);
             }
         } else if kind == KIND_POSITION {
             let vel_aided = self.last_vel_accepted_us.is_some_and(|t| self.t_us.saturating_sub(t) < 5_000_000);
-            let w = 1.0;
-            self.last_pos_obs_us = Some(t_us);
             if !vel_aided {
-                self.adapt_imu_q(rep.nis, 3, w);
+                self.adapt_imu_q(rep.nis, 3);
             }
         }
         if rep.accepted && delayed {
@@ -787,12 +783,12 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// and give the UKF the new `Q` when the scale moved by more than 10 % since the last time
     /// (not with the Sage-Husa `Q` recursion on: that one owns `Q`).
     #[inline(never)] // its candidate Q (900 B) stays out of the update path's frame (M4F stack)
-    fn adapt_imu_q(&mut self, nis: f32, m: usize, w: f32) {
+    fn adapt_imu_q(&mut self, nis: f32, m: usize) {
         let cfg = self.cfg.imu_q_adapt;
         if !cfg.on || self.cfg.ukf.adapt.q_cov {
             return;
         }
-        self.q_scale.observe_weighted(&cfg, nis, m, w);
+        self.q_scale.observe(&cfg, nis, m);
         let s = self.q_scale.scale();
         let ratio = s / self.q_scale_applied;
         if (ratio > 1.1 || ratio < 1.0 / 1.1) && self.apply_imu_q_scale(s) {

@@ -248,24 +248,14 @@ impl<T: RealField + Copy> NisQScale<T> {
     /// One measurement's NIS (against the full prior innovation covariance) of dimension `m`,
     /// accepted or refused by the gate. A non-finite NIS is ignored.
     pub fn observe(&mut self, cfg: &QScaleConfig<T>, nis: T, m: usize) {
-        self.observe_weighted(cfg, nis, m, T::one());
-    }
-
-    /// As [`NisQScale::observe`], the measurement counting as `w >= 1` of them (a sensor whose
-    /// measurements are rare carries more process noise in each: the forgetting is `b^w`, the
-    /// step `m^(gain w)` with the exponent at most 1, plain covariance matching).
-    pub fn observe_weighted(&mut self, cfg: &QScaleConfig<T>, nis: T, m: usize, w: T) {
-        if !cfg.on || !nis.is_finite() || nis < T::zero() || m == 0 || !(w >= T::one()) || !w.is_finite() {
+        if !cfg.on || !nis.is_finite() || nis < T::zero() || m == 0 {
             return;
         }
         let r = nis / T::from_subset(&(m as f64));
         let r = if r > cfg.clip { cfg.clip } else { r };
-        let bw = cfg.b.powf(w);
-        self.mean = self.mean * bw + r * (T::one() - bw);
+        self.mean = self.mean * cfg.b + r * (T::one() - cfg.b);
         if self.mean > cfg.hi || self.mean < cfg.lo {
-            let e = cfg.gain * w;
-            let e = if e > T::one() { T::one() } else { e };
-            let s = self.scale * self.mean.powf(e);
+            let s = self.scale * self.mean.powf(cfg.gain);
             self.scale = if s > cfg.max {
                 cfg.max
             } else if s < cfg.min {
