@@ -418,8 +418,8 @@ pub struct ReferenceConfig {
     pub tilt_sigma_rad: f64,
     pub errors: SensorErrors,
     pub seed: u64,
-    /// Run the solver as it was before the OSOAA comparison (no model departure, free
-    /// elevation, fixed elevation bound), for comparison.
+    /// Run the head's own solver settings (`head::compass_config`: pure single scattering, as
+    /// the firmware runs it) instead of issue 35's (`head::compass_config_departure`).
     pub single_scattering_solver: bool,
 }
 
@@ -448,6 +448,7 @@ pub struct ReferenceResult {
     pub fixes: usize,
     pub no_fix_fraction: f64,
     pub no_fix: BTreeMap<String, usize>,
+    /// Error statistics over the fixes (NaN, `null` in JSON, without fixes).
     pub rmse_deg: f64,
     pub max_abs_err_deg: f64,
     pub bias_deg: f64,
@@ -469,14 +470,12 @@ pub fn max_tilt_on_grid_deg(field: &ReferenceField) -> f64 {
 pub fn run(field: &ReferenceField, cfg: &ReferenceConfig) -> ReferenceResult {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let units = sim::default_units(cfg.units);
-    let mut ccfg = compass_config(&sim::Water::clear(), cfg.tilt_sigma_rad);
-    ccfg.n_water = 1.34; // OSOAA's index (README)
-    if cfg.single_scattering_solver {
-        let plain = CompassConfig::default();
-        ccfg.solver.model_aop_dolp_rad = plain.solver.model_aop_dolp_rad;
-        ccfg.azimuth_at_known_elevation = plain.azimuth_at_known_elevation;
-        ccfg.elevation_mismatch_sigmas = plain.elevation_mismatch_sigmas;
-    }
+    // The head's settings (the firmware's) or issue 35's (`head::compass_config_departure`).
+    let base =
+        if cfg.single_scattering_solver { subnav_core::head::compass_config() } else { subnav_core::head::compass_config_departure() };
+    let host = compass_config(&sim::Water::clear(), cfg.tilt_sigma_rad);
+    // n = 1.34: OSOAA's index (README).
+    let ccfg = CompassConfig { min_s0: host.min_s0, tilt_sigma_rad: host.tilt_sigma_rad, n_water: 1.34, ..base };
     let el_deg = 90.0 - cfg.sun_zenith_deg;
     let v3 = |x: [f32; 3]| Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
     let (mut errs, mut no_fix) = (Vec::new(), BTreeMap::new());
@@ -525,7 +524,8 @@ pub fn run(field: &ReferenceField, cfg: &ReferenceConfig) -> ReferenceResult {
         }
     }
     let n = errs.len();
-    let nf = n.max(1) as f64;
+    // No fixes: the error statistics are undefined (NaN, `null` in JSON), not 0.
+    let nf = if n > 0 { n as f64 } else { f64::NAN };
     let deg = |x: f64| x.to_degrees();
     ReferenceResult {
         sun_zenith_deg: cfg.sun_zenith_deg,
@@ -536,7 +536,7 @@ pub fn run(field: &ReferenceField, cfg: &ReferenceConfig) -> ReferenceResult {
         no_fix_fraction: 1.0 - n as f64 / cfg.draws.max(1) as f64,
         no_fix,
         rmse_deg: deg((errs.iter().map(|e| e.0 * e.0).sum::<f64>() / nf).sqrt()),
-        max_abs_err_deg: deg(errs.iter().map(|e| e.0.abs()).fold(0.0, f64::max)),
+        max_abs_err_deg: if n > 0 { deg(errs.iter().map(|e| e.0.abs()).fold(0.0, f64::max)) } else { f64::NAN },
         bias_deg: deg(errs.iter().map(|e| e.0).sum::<f64>() / nf),
         within_2_sigma: errs.iter().filter(|e| e.0.abs() <= 2.0 * e.1).count() as f64 / nf,
         within_3_sigma: errs.iter().filter(|e| e.0.abs() <= 3.0 * e.1).count() as f64 / nf,

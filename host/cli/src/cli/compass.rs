@@ -110,8 +110,8 @@ pub struct SimulateArgs {
     /// must keep the units on the file's view-zenith grid.
     #[arg(long, default_value_t = 5.0, value_parser = super::args::f64_in(0.0..=45.0))]
     pub max_tilt_deg: f64,
-    /// With --reference-field: the solver as it was before the OSOAA comparison (pure single
-    /// scattering: no model departure, free elevation), for comparison.
+    /// With --reference-field: the head's own solver settings (pure single scattering, as the
+    /// firmware runs it) instead of the model-departure solver (`head::compass_config_departure`).
     #[arg(long, requires = "reference_field")]
     pub single_scattering_solver: bool,
     #[command(flatten)]
