@@ -154,10 +154,20 @@ pub struct CompassConfig {
     /// bound was tried: the 4-unit head's dive compass RMSE went from about 0.3 to 3-5 deg
     /// (wrong fixes the check had been refusing), so it stays at 6 deg.
     pub max_elevation_mismatch_rad: f32,
+    /// The elevation check's bound is at least this many of the measured in-air elevation's
+    /// reported 1-sigma (0: the fixed bound alone).
+    pub elevation_mismatch_sigmas: f32,
     /// Accepted |accel| / g0 range.
     pub gravity_tolerance: f32,
     /// 1-sigma tilt (roll/pitch) error of the gravity vector (rad).
     pub tilt_sigma_rad: f32,
+    /// With time and position known, re-fit the sun's azimuth alone on the cone of the
+    /// ephemeris's refracted elevation ([`sun_vector::solve_azimuth`]): the real field pulls
+    /// the measured elevation, and the free elevation leaks that pull into the azimuth.
+    pub azimuth_at_known_elevation: bool,
+    /// Largest reported heading 1-sigma for a fix (rad); beyond it the field cannot give a
+    /// heading (low DoLP, turbid water with a low sun) and the reason is `LowDolp`.
+    pub max_sigma_heading_rad: f32,
 }
 
 impl Default for CompassConfig {
@@ -173,8 +183,11 @@ impl Default for CompassConfig {
             min_sun_elevation_rad: 3.0 * DEG,
             max_sun_elevation_rad: 87.0 * DEG,
             max_elevation_mismatch_rad: 6.0 * DEG,
+            elevation_mismatch_sigmas: 0.0,
             gravity_tolerance: 0.2,
             tilt_sigma_rad: 0.0,
+            azimuth_at_known_elevation: false,
+            max_sigma_heading_rad: f32::INFINITY,
         }
     }
 }
@@ -280,7 +293,13 @@ pub fn measure_sun(
 ) -> Result<SunMeasurement, NoFix> {
     let up = up_from_accel(accel_body_mps2, cfg)?;
     let obs = observe_units(units, counts, cfg)?;
-    let sun = sun_vector::solve(&obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver)?;
+    measure_sun_from(&obs, &up, cfg)
+}
+
+/// [`measure_sun`] from the kept units and the vertical.
+fn measure_sun_from(obs: &[UnitObservation], up: &Vector3<f32>, cfg: &CompassConfig) -> Result<SunMeasurement, NoFix> {
+    let up = *up;
+    let sun = sun_vector::solve(obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver)?;
     // Level (heading) frame: x = body x projected on the horizontal, z = down.
     let down = -up;
     let xb = Vector3::new(1.0, 0.0, 0.0);
@@ -331,7 +350,11 @@ pub fn heading(m: &SunMeasurement, unix_us: i64, obs: &Observer, delta_t_s: f32,
     if el > cfg.max_sun_elevation_rad {
         return Err(NoFix::SunNearZenith);
     }
-    if !((m.air_elevation_rad - el).abs() <= cfg.max_elevation_mismatch_rad) {
+    // The bound grows with the measured elevation's own 1-sigma: where the solver reports
+    // that the field does not fix the elevation (low DoLP, the model departure), a pulled
+    // elevation is what it said, not a sign of a wrong sun.
+    let bound = cfg.max_elevation_mismatch_rad.max(cfg.elevation_mismatch_sigmas * m.sigma_air_elevation_rad);
+    if !((m.air_elevation_rad - el).abs() <= bound) {
         return Err(NoFix::Inconsistent);
     }
     let mut h = eph.azimuth_rad - m.rel_azimuth_rad;
@@ -365,14 +388,40 @@ pub struct CompassInput<'a> {
 
 /// The whole solve. On `Err`, the sun measurement is returned when it was made (e.g. `NoTime`).
 pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
-    let m = measure_sun(units, input.counts, input.accel_body_mps2, cfg).map_err(|e| match (e, input.unix_us, input.observer) {
+    let up = up_from_accel(input.accel_body_mps2, cfg).map_err(|e| (e, None))?;
+    let obs = observe_units(units, input.counts, cfg).map_err(|e| (e, None))?;
+    let m = measure_sun_from(&obs, &up, cfg).map_err(|e| match (e, input.unix_us, input.observer) {
         (NoFix::SunNearZenith, Some(t), Some(o)) if sun_disc_missing(t, &o, input.delta_t_s, cfg) => (NoFix::NoSunDisc, None),
         _ => (e, None),
     })?;
-    match (input.unix_us, input.observer) {
-        (Some(t), Some(o)) => heading(&m, t, &o, input.delta_t_s, cfg).map_err(|e| (e, Some(m))),
-        _ => Err((NoFix::NoTime, Some(m))),
+    let (Some(t), Some(o)) = (input.unix_us, input.observer) else {
+        return Err((NoFix::NoTime, Some(m)));
+    };
+    let mut fix = heading(&m, t, &o, input.delta_t_s, cfg).map_err(|e| (e, Some(m)))?;
+    if cfg.azimuth_at_known_elevation {
+        let air_zenith = core::f32::consts::FRAC_PI_2 - fix.ephemeris_elevation_rad;
+        let water_el = core::f32::consts::FRAC_PI_2 - water::water_zenith_rad(air_zenith.max(0.0), cfg.n_water);
+        let fit = sun_vector::solve_azimuth(&obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver, water_el, &m.sun.s_body)
+            .map_err(|e| (e, Some(m)))?;
+        let (se, ce) = crate::ephemeris::phase::sincos_rad(water_el);
+        let sigma_tilt = cfg.tilt_sigma_rad * se / ce.max(1e-3);
+        let sigma = libm::sqrtf(fit.sigma_rel_azimuth_rad * fit.sigma_rel_azimuth_rad + sigma_tilt * sigma_tilt);
+        let mut h = fix.ephemeris_azimuth_rad - fit.rel_azimuth_rad;
+        while h < 0.0 {
+            h += core::f32::consts::TAU;
+        }
+        while h >= core::f32::consts::TAU {
+            h -= core::f32::consts::TAU;
+        }
+        fix.heading_rad = h;
+        fix.sigma_heading_rad = sigma;
+        fix.sun.rel_azimuth_rad = fit.rel_azimuth_rad;
+        fix.sun.sigma_rel_azimuth_rad = sigma;
     }
+    if !(fix.sigma_heading_rad <= cfg.max_sigma_heading_rad) {
+        return Err((NoFix::LowDolp, Some(fix.sun)));
+    }
+    Ok(fix)
 }
 
 /// A measured sun at the zenith while the ephemeris puts the refracted sun at least 10 deg

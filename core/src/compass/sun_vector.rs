@@ -40,6 +40,14 @@ pub struct SolverConfig {
     pub min_units: u8,
     /// Maximum residual chi-square per degree of freedom for a fix.
     pub max_chi2_dof: f32,
+    /// How far the real field's AoP departs from the single-scattering e-vector, as
+    /// `departure * DoLP` (rad): each unit's AoP 1-sigma gets `model_aop_dolp_rad / DoLP` in
+    /// quadrature. Multiple scattering, the sky's own polarization and particle polarization
+    /// add a polarized part whose orientation is not the single-scattering one; its share of
+    /// the polarized light grows as DoLP falls, so the AoP departure scales as 1 / DoLP. 0
+    /// trusts the single-scattering model (the synthetic tests). Measured against OSOAA
+    /// (docs/PERFORMANCE.md, "The compass in an independent light field").
+    pub model_aop_dolp_rad: f32,
 }
 
 impl Default for SolverConfig {
@@ -53,6 +61,7 @@ impl Default for SolverConfig {
             outlier_sigma: 5.0,
             min_units: 3,
             max_chi2_dof: 400.0,
+            model_aop_dolp_rad: 0.0,
         }
     }
 }
@@ -143,6 +152,113 @@ fn median_abs(x: &[f32]) -> f32 {
     }
 }
 
+/// AoP 1-sigma of a unit: the noise model (floored) and the model departure, in quadrature.
+pub fn aop_sigma(o: &UnitObservation, cfg: &SolverConfig) -> f32 {
+    let noise = o.sigma_aop_rad.max(cfg.sigma_aop_floor_rad);
+    let model = cfg.model_aop_dolp_rad / o.dolp.max(1e-3);
+    libm::sqrtf(noise * noise + model * model)
+}
+
+/// The sun's azimuth with its refracted elevation known (from the ephemeris and Snell).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AzimuthFit {
+    /// Unit vector toward the refracted sun, body FRD.
+    pub s_body: Vector3<f32>,
+    /// Sun azimuth relative to the level frame's forward axis (body x projected), clockwise
+    /// seen from above (rad), and its 1-sigma (inflated by the residual chi-square).
+    pub rel_azimuth_rad: f32,
+    pub sigma_rel_azimuth_rad: f32,
+    pub chi2_dof: f32,
+    pub units_used: u8,
+}
+
+/// One-parameter fit of the sun azimuth on the cone of the known refracted elevation
+/// `water_elevation_rad`, starting from the unconstrained sun `s_init` (body). Why: the
+/// departure of the real field from single scattering pulls the measured sun's elevation (by
+/// degrees at a low sun), and in the two-parameter fit that pull leaks into the azimuth; with
+/// the elevation known, only the azimuth is fitted, with one more residual degree of freedom
+/// to check the model. Same weights, Huber IRLS and Fresnel correction as [`solve`].
+pub fn solve_azimuth(
+    obs: &[UnitObservation],
+    up_body: &Vector3<f32>,
+    n_water: Option<f32>,
+    cfg: &SolverConfig,
+    water_elevation_rad: f32,
+    s_init: &Vector3<f32>,
+) -> Result<AzimuthFit, NoFix> {
+    let n = obs.len();
+    if n > super::MAX_UNITS || n < cfg.min_units.max(2) as usize {
+        return Err(NoFix::TooFewUnits);
+    }
+    // Level frame: forward = body x projected on the horizontal, right = down x forward.
+    let down = -up_body;
+    let xb = Vector3::new(1.0, 0.0, 0.0);
+    let fwd = xb - down * xb.dot(&down);
+    if !(fwd.norm() > 0.05) {
+        return Err(NoFix::TiltInvalid);
+    }
+    let fwd = fwd.normalize();
+    let right = down.cross(&fwd);
+    let (se, ce) = crate::ephemeris::phase::sincos_rad(water_elevation_rad);
+    let sun_at = |psi: f32| {
+        let (sp, cp) = crate::ephemeris::phase::sincos_rad(psi);
+        (fwd * cp + right * sp) * ce + up_body * se
+    };
+    let mut psi = libm::atan2f(s_init.dot(&right), s_init.dot(&fwd));
+    let sigma_r =
+        |o: &UnitObservation, s: &Vector3<f32>| aop_sigma(o, cfg) * o.view_body.cross(&o.e_body).dot(s).abs().max(cfg.lever_floor);
+    let mut e = [Vector3::zeros(); super::MAX_UNITS];
+    let mut r = [0.0f32; super::MAX_UNITS];
+    let mut info = 0.0f32;
+    let mut chi2 = 0.0f32;
+    for it in 0..(cfg.irls_iterations as usize + 4) {
+        let s = sun_at(psi);
+        let (sp, cp) = crate::ephemeris::phase::sincos_rad(psi);
+        let ds = (right * cp - fwd * sp) * ce;
+        for (ei, o) in e.iter_mut().zip(obs) {
+            let delta = n_water.and_then(|nw| fresnel_aop_shift(o, &s, up_body, nw)).unwrap_or(0.0);
+            *ei = rotate_back(o, delta);
+        }
+        for ((ri, ei), o) in r.iter_mut().zip(e.iter()).zip(obs) {
+            *ri = ei.dot(&s) / sigma_r(o, &s);
+        }
+        let scale = (1.482_6 * median_abs(r.get(..n).unwrap_or(&[]))).max(1.0);
+        let (mut jtj, mut jtr) = (0.0f32, 0.0f32);
+        chi2 = 0.0;
+        for ((ei, ri), o) in e.iter().zip(r.iter()).zip(obs) {
+            let sr = sigma_r(o, &s);
+            let j = ei.dot(&ds) / sr;
+            // Plain least squares on the first pass, Huber weights after.
+            let u = ri.abs() / scale;
+            let w = if it == 0 || u <= cfg.huber_k { 1.0 } else { cfg.huber_k / u };
+            jtj += w * j * j;
+            jtr += w * j * ri;
+            chi2 += ri * ri;
+        }
+        if !(jtj > 0.0 && jtj.is_finite()) {
+            return Err(NoFix::Degenerate);
+        }
+        info = jtj;
+        let step = (-jtr / jtj).clamp(-0.3, 0.3);
+        psi += step;
+        if step.abs() < 1e-6 {
+            break;
+        }
+    }
+    let dof = (n as f32 - 1.0).max(1.0);
+    let chi2_dof = chi2 / dof;
+    if !(chi2_dof <= cfg.max_chi2_dof) {
+        return Err(NoFix::Inconsistent);
+    }
+    let sigma = libm::sqrtf(chi2_dof.max(1.0) / info);
+    let s = sun_at(psi);
+    if !(sigma.is_finite() && psi.is_finite()) {
+        return Err(NoFix::Degenerate);
+    }
+    let psi = libm::atan2f(libm::sinf(psi), libm::cosf(psi));
+    Ok(AzimuthFit { s_body: s, rel_azimuth_rad: psi, sigma_rel_azimuth_rad: sigma, chi2_dof, units_used: n as u8 })
+}
+
 /// Robust weighted sun vector from the good units. `up_body` is a unit vector toward the sky.
 /// With `n_water`, the e-vectors are corrected for the Fresnel polarization of the refracted
 /// sunbeam (computed from the current sun estimate and the vertical; flat-surface model).
@@ -154,7 +270,7 @@ pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f3
     if n < cfg.min_units.max(2) as usize {
         return Err(NoFix::TooFewUnits);
     }
-    let sigma_aop = |o: &UnitObservation| o.sigma_aop_rad.max(cfg.sigma_aop_floor_rad);
+    let sigma_aop = |o: &UnitObservation| aop_sigma(o, cfg);
     // First solve: DoLP (inverse AoP variance) weights.
     let mut m = Matrix3::zeros();
     let mut trace = 0.0;

@@ -77,6 +77,26 @@ impl Water {
     }
 }
 
+impl Water {
+    /// Turbid coastal water: the optics of the OSOAA reference's turbid case (Chl 3 mg/m^3
+    /// plus 1 mg/L minerals: c = 1.056/m, b = 0.974/m, particles 0.974 of b), with our
+    /// guesses for what single scattering needs besides (K_d from a + b_b, the particles'
+    /// Henyey-Greenstein asymmetry, the background's strength).
+    pub fn turbid() -> Self {
+        Water {
+            n_water: subnav_core::compass::water::default_index() as f64,
+            c_per_m: 1.056,
+            b_per_m: 0.974,
+            particle_fraction: 0.97,
+            hg_g: 0.92,
+            kd_per_m: 0.17,
+            multiple_scattering: 0.6,
+            slope_rms: 0.0,
+            facets: 1,
+        }
+    }
+}
+
 /// Sensor noise and calibration residuals (what the calibration does not know).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SensorErrors {

@@ -29,6 +29,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("compass geolocate", "geolocation"),
     ("compass csv", "CSV of raw channel counts"),
     ("compass envelope", "operating envelope"),
+    ("compass field", "downwelling Stokes field"),
     ("record", "Record telemetry"),
     ("export", "Export a recording"),
     ("sim", "simulated dive scenario"),

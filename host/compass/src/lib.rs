@@ -1,9 +1,11 @@
 //! Host side of the polarization compass: the heading Monte Carlo ([`montecarlo`]: flat
 //! surface, or a moving sea under a sky), the operating envelope over depth, wind, turbidity
-//! and sky ([`envelope`]) and sun-based geolocation ([`geoloc`]). The field and sensor
+//! and sky ([`envelope`]), sun-based geolocation ([`geoloc`]) and the compass in a light
+//! field from outside ([`reference`]: an OSOAA or measured downwelling Stokes field). The field and sensor
 //! simulator is `subnav_base::sky` (with the sea of `subnav_base::sea`); the compass itself is
 //! `subnav_core::compass`, the same code the firmware runs.
 
 pub mod envelope;
 pub mod geoloc;
 pub mod montecarlo;
+pub mod reference;

@@ -86,9 +86,14 @@ pub fn turbid_water(turbidity: f64) -> Water {
     Water { c_per_m: w.c_per_m * turbidity, b_per_m: w.b_per_m * turbidity, kd_per_m: w.kd_per_m * turbidity, ..w }
 }
 
-/// Compass configuration matching the simulated head.
+/// Compass configuration matching the simulated head (`subnav_core::head::compass_config`).
 pub fn compass_config(water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
-    CompassConfig { min_s0: 50.0, n_water: water.n_water as f32, tilt_sigma_rad: tilt_sigma_rad as f32, ..CompassConfig::default() }
+    CompassConfig {
+        min_s0: 50.0,
+        n_water: water.n_water as f32,
+        tilt_sigma_rad: tilt_sigma_rad as f32,
+        ..subnav_core::head::compass_config()
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]

@@ -38,6 +38,10 @@ pub enum Sub {
     /// The operating envelope: the moving-sea Monte Carlo over depth x wind x turbidity x sky;
     /// a PNG figure (heading RMSE and the fraction within 2 reported sigma) and its table.
     Envelope(EnvelopeArgs),
+    /// Write the simulator's own downwelling Stokes field in the reference CSV format
+    /// (`view_zenith_deg,rel_azimuth_deg,I,Q,U,...`, the OSOAA convention), and with
+    /// --compare, how it differs from a reference field.
+    Field(FieldArgs),
     /// Run the compass on a CSV of raw channel counts, one solve per row.
     Csv {
         /// The CSV (header, then `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,...`).
@@ -51,9 +55,10 @@ pub struct Sky {
     /// Sensor depth (m, 0..=1000).
     #[arg(long, default_value_t = 10.0, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=1000.0))]
     pub depth_m: f64,
-    /// Polarization units in the simulated head.
-    #[arg(long, default_value_t = 8)]
-    pub units: usize,
+    /// Polarization units in the simulated head (default 8; with --reference-field the head's
+    /// own count, `subnav_core::head::POLARIZATION_UNITS`).
+    #[arg(long)]
+    pub units: Option<usize>,
     /// Gravity-vector tilt error, 1-sigma per axis (deg).
     #[arg(long, default_value_t = 0.01)]
     pub tilt_sigma_deg: f64,
@@ -91,8 +96,64 @@ pub struct SimulateArgs {
     /// Also write the simulated raw counts as a CSV usable with `compass csv`.
     #[arg(long)]
     pub emit_csv: Option<std::path::PathBuf>,
+    /// Look into this downwelling Stokes field instead of the simulator's: a CSV
+    /// `view_zenith_deg,rel_azimuth_deg,I,Q,U[,...]` in the convention of an OSOAA run
+    /// (rel_azimuth from the sun's azimuth; `subnav_compass::reference`). With --sun-zenith-deg
+    /// and --depth-m saying what the file is. The head's units look into it at random
+    /// headings and tilts (--max-tilt-deg) with sensor noise; the real solver gives the heading.
+    #[arg(long, requires = "sun_zenith_deg", conflicts_with_all = ["emit_csv", "wind_mps", "sky", "slope_rms"])]
+    pub reference_field: Option<std::path::PathBuf>,
+    /// The sun's zenith angle in air (deg, 0..=89) the reference field was computed for.
+    #[arg(long, requires = "reference_field", value_parser = super::args::f64_in(0.0..=89.0))]
+    pub sun_zenith_deg: Option<f64>,
+    /// With --reference-field: body tilts drawn within a cone of this half angle (deg, 0..=45);
+    /// must keep the units on the file's view-zenith grid.
+    #[arg(long, default_value_t = 5.0, value_parser = super::args::f64_in(0.0..=45.0))]
+    pub max_tilt_deg: f64,
+    /// With --reference-field: the head's own solver settings (pure single scattering, as the
+    /// firmware runs it) instead of the model-departure solver (`head::compass_config_departure`).
+    #[arg(long, requires = "reference_field")]
+    pub single_scattering_solver: bool,
     #[command(flatten)]
     pub sky: Sky,
+}
+
+/// Water of `compass field`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum WaterKind {
+    /// The simulator's clear oceanic water (`subnav_base::sky::Water::clear`).
+    Clear,
+    /// Turbid coastal water (`subnav_base::sky::Water::turbid`: the OSOAA turbid case's optics).
+    Turbid,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct FieldArgs {
+    /// The sun's zenith angle in air (deg, 0..=89).
+    #[arg(long, value_parser = super::args::f64_in(0.0..=89.0))]
+    pub sun_zenith_deg: f64,
+    /// Depth (m, 0..=1000).
+    #[arg(long, value_parser = super::args::f64_in(0.0..=1000.0))]
+    pub depth_m: f64,
+    /// Wind (m/s at 10 m, 0..=30): the moving sea frozen at t = 0.
+    #[arg(long, default_value_t = 0.0, value_parser = super::args::f64_in(0.0..=30.0))]
+    pub wind_mps: f64,
+    /// The water.
+    #[arg(long, value_enum, default_value_t = WaterKind::Clear)]
+    pub water: WaterKind,
+    /// Write the CSV here (default: standard output).
+    #[arg(long)]
+    pub output: Option<std::path::PathBuf>,
+    /// Compare with this reference field (same grid): AoP where its DoLP > --min-dolp, DoLP
+    /// everywhere; printed (to standard error when the CSV goes to standard output).
+    #[arg(long)]
+    pub compare: Option<std::path::PathBuf>,
+    /// DoLP above which the AoP is compared (0..=1).
+    #[arg(long, default_value_t = 0.1, value_parser = super::args::f64_in(0.0..=1.0))]
+    pub min_dolp: f64,
+    /// Sea seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -149,12 +210,17 @@ pub struct EnvelopeArgs {
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let check = |sky: &Sky| {
-        if sky.units < 3 || sky.units > compass::MAX_UNITS {
+        let units = sky.units.unwrap_or(DEFAULT_UNITS);
+        if !(3..=compass::MAX_UNITS).contains(&units) {
             bail!("--units must be within 3..={}", compass::MAX_UNITS);
         }
         Ok(())
     };
     match args.command {
+        Sub::Simulate(a) if a.reference_field.is_some() => {
+            check(&a.sky)?;
+            reference(&a, format)
+        }
         Sub::Simulate(a) => {
             check(&a.sky)?;
             if a.min_elevation_deg >= a.max_elevation_deg {
@@ -174,6 +240,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             geolocate(&a, format)
         }
         Sub::Csv { file } => from_csv(&file, format),
+        Sub::Field(a) => field(&a, format),
         Sub::Envelope(a) => envelope(&a, format),
     }
 }
@@ -291,6 +358,124 @@ fn envelope_png(
     Ok(())
 }
 
+/// Units of the simulated head when --units is not given (the head itself has
+/// `subnav_core::head::POLARIZATION_UNITS`).
+const DEFAULT_UNITS: usize = 8;
+
+/// `compass simulate --reference-field`: the head's units and the real solver in a field from
+/// outside (`subnav_compass::reference`).
+fn reference(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
+    use subnav_compass::reference as rf;
+    let path = args.reference_field.as_deref().context("--reference-field")?;
+    let sza = args.sun_zenith_deg.context("--reference-field needs --sun-zenith-deg")?;
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading the reference field {}", path.display()))?;
+    let field = rf::ReferenceField::parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let max_tilt = rf::max_tilt_on_grid_deg(&field);
+    if args.max_tilt_deg > max_tilt + 1e-9 {
+        bail!(
+            "--max-tilt-deg {} would tilt the units beyond the file's largest view zenith ({:.1} deg in {}): at most {:.1} deg",
+            args.max_tilt_deg,
+            field.max_zenith_rad().to_degrees(),
+            path.display(),
+            max_tilt.max(0.0)
+        );
+    }
+    let cfg = rf::ReferenceConfig {
+        sun_zenith_deg: sza,
+        depth_m: args.sky.depth_m,
+        draws: args.draws,
+        units: args.sky.units.unwrap_or(subnav_core::head::POLARIZATION_UNITS),
+        max_tilt_deg: args.max_tilt_deg,
+        tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
+        seed: args.sky.seed,
+        single_scattering_solver: args.single_scattering_solver,
+        ..rf::ReferenceConfig::default()
+    };
+    let r = rf::run(&field, &cfg);
+    match format {
+        Format::Json => {
+            let mut v = serde_json::to_value(&r)?;
+            v["file"] = json!(path.display().to_string());
+            println!("{}", serde_json::to_string(&v)?)
+        }
+        Format::Text => {
+            println!(
+                "{}: sun zenith {} deg, depth {} m, {} units, {} draws (tilt <= {} deg): {} fixes ({:.1}% no fix), heading RMSE {:.3} deg, max |err| {:.3} deg, bias {:+.3} deg",
+                path.display(),
+                r.sun_zenith_deg,
+                r.depth_m,
+                r.units,
+                r.draws,
+                cfg.max_tilt_deg,
+                r.fixes,
+                100.0 * r.no_fix_fraction,
+                r.rmse_deg,
+                r.max_abs_err_deg,
+                r.bias_deg
+            );
+            println!(
+                "reported 1-sigma (RMS) {:.3} deg; {:.1}% of fixes within 2 sigma, {:.1}% within 3 sigma; mean unit DoLP {:.3}",
+                r.rms_reported_sigma_deg,
+                100.0 * r.within_2_sigma,
+                100.0 * r.within_3_sigma,
+                r.mean_dolp
+            );
+            for (k, v) in &r.no_fix {
+                println!("  no fix {k}: {v}");
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `compass field`: the simulator's field as a reference CSV, and its difference from one.
+fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
+    use subnav_compass::reference as rf;
+    let water = match args.water {
+        WaterKind::Clear => sim::Water::clear(),
+        WaterKind::Turbid => sim::Water::turbid(),
+    };
+    // Read the reference first: a bad file is refused before anything is written.
+    let reference = match &args.compare {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading the reference field {}", p.display()))?;
+            Some((p, rf::ReferenceField::parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?))
+        }
+        None => None,
+    };
+    let f = rf::ReferenceField::simulated(args.sun_zenith_deg, args.depth_m, args.wind_mps, water, args.seed);
+    let csv = f.to_csv();
+    match &args.output {
+        Some(p) => {
+            // Whole or nothing: a temporary file beside it, renamed over it.
+            let tmp = p.with_extension("csv.partial");
+            std::fs::write(&tmp, csv.as_bytes()).with_context(|| format!("writing {}", tmp.display()))?;
+            std::fs::rename(&tmp, p).with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
+        }
+        None => print!("{csv}"),
+    }
+    if let Some((p, r)) = reference {
+        let c = rf::compare(&f, &r, args.min_dolp, 80.0)
+            .with_context(|| format!("{}: not on the simulator's grid (view zenith 0-80 by 5, azimuth 0-345 by 15)", p.display()))?;
+        let text = match format {
+            Format::Json => serde_json::to_string(&c)?,
+            Format::Text => format!(
+                "simulator vs {}: AoP (DoLP > {}) RMS {:.2} deg, max {:.2} deg over {} points; DoLP RMS {:.3}, max {:.3} over {} points",
+                p.display(),
+                args.min_dolp,
+                c.aop_rms_deg,
+                c.aop_max_abs_deg,
+                c.aop_points,
+                c.dolp_rms,
+                c.dolp_max_abs,
+                c.points
+            ),
+        };
+        if args.output.is_some() { println!("{text}") } else { eprintln!("{text}") }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 fn water(sky: &Sky) -> sim::Water {
     let flat = montecarlo::turbid_water(sky.turbidity);
     if sky.slope_rms > 0.0 { sim::Water { slope_rms: sky.slope_rms, facets: 16, ..flat } } else { flat }
@@ -306,7 +491,7 @@ fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
         depth_m: args.sky.depth_m,
         min_elevation_deg: args.min_elevation_deg,
         max_elevation_deg: args.max_elevation_deg,
-        units: args.sky.units,
+        units: args.sky.units.unwrap_or(DEFAULT_UNITS),
         tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
         water: water(&args.sky),
         seed: args.sky.seed,
@@ -371,7 +556,7 @@ fn geolocate(args: &GeolocateArgs, format: Format) -> Result<ExitCode> {
         duration_s: args.track_s,
         interval_s: args.interval_s.max(1),
         depth_m: args.sky.depth_m,
-        units: args.sky.units,
+        units: args.sky.units.unwrap_or(DEFAULT_UNITS),
         tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
         heading_sigma_rad: args.heading_sigma_deg.to_radians(),
         fit_azimuth_offset: !args.known_heading,
