@@ -25,8 +25,8 @@ use subnav_core::compass::{self, CompassInput, UnitModel};
 use subnav_core::ephemeris::{Observer, delta_t_estimate_s};
 use subnav_core::head;
 use subnav_core::nav::dvl::DvlMeasurement;
-use subnav_core::nav::{NavConfig, NavError, NavFilter15, NavInit};
 use subnav_core::nav::{KIND_DEPTH, KIND_HEADING, KIND_VELOCITY};
+use subnav_core::nav::{NavConfig, NavError, NavFilter15, NavInit};
 use subnav_core::ukf::UpdateReport;
 use subnav_wire::{AidSource, AidStatuses, CompassReport, DvlSample, DvlTracking, FilterHealth, ImuSample, NavMode, NavSolution};
 
@@ -538,8 +538,8 @@ impl Estimator {
         // at the larger ratio (an IMU noisier than configured), and the at-rest means are
         // trusted only as far as that noise allows.
         let rate = self.cfg.imu_rate_hz;
-        let noise_scale = (var_gyro / (self.cfg.gyro_arw * self.cfg.gyro_arw * rate))
-            .max(var_accel / (self.cfg.accel_vrw * self.cfg.accel_vrw * rate));
+        let noise_scale =
+            (var_gyro / (self.cfg.gyro_arw * self.cfg.gyro_arw * rate)).max(var_accel / (self.cfg.accel_vrw * self.cfg.accel_vrw * rate));
         let (yaw, yaw_sigma) = self.yaw_fix.unwrap_or((0.0, YAW_UNKNOWN_SIGMA_RAD));
         let mut cfg = self.cfg;
         cfg.init_sigma_att_rad[2] = yaw_sigma.max(cfg.init_sigma_att_rad[2]);

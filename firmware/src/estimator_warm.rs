@@ -380,8 +380,9 @@ pub struct MovingStart {
 
 impl MovingStart {
     fn is_valid(&self) -> bool {
-        let finite = self.pos_ned_m.iter().chain(&self.vel_ned_mps).chain(&self.sigma_pos_m).chain(&self.sigma_vel_mps).all(|v| v.is_finite())
-            && self.yaw_rad.is_finite();
+        let finite =
+            self.pos_ned_m.iter().chain(&self.vel_ned_mps).chain(&self.sigma_pos_m).chain(&self.sigma_vel_mps).all(|v| v.is_finite())
+                && self.yaw_rad.is_finite();
         let pos = |v: f32| v.is_finite() && v > 0.0;
         finite
             && self.sigma_pos_m.iter().chain(&self.sigma_vel_mps).all(|v| *v > 0.0)

@@ -29,7 +29,18 @@ fn message(i: usize) -> Uplink {
         }),
         1 => Uplink::Health(FilterHealth {
             t_us,
-            aid: subnav_wire::AidStatuses { heading: subnav_wire::AidStatus { nis: 1.0, test_ratio: 0.1, noise_var: 1e-4, fused: true, fused_count: 3, ..Default::default() }, depth: subnav_wire::AidStatus { nis: f32::NAN, ..Default::default() }, ..Default::default() },
+            aid: subnav_wire::AidStatuses {
+                heading: subnav_wire::AidStatus {
+                    nis: 1.0,
+                    test_ratio: 0.1,
+                    noise_var: 1e-4,
+                    fused: true,
+                    fused_count: 3,
+                    ..Default::default()
+                },
+                depth: subnav_wire::AidStatus { nis: f32::NAN, ..Default::default() },
+                ..Default::default()
+            },
             imu_q_scale: 1.0,
             lambda: 1.0,
             q_diag: [1e-6; 5],

@@ -40,7 +40,10 @@ fn message(r: &mut Rng) -> Uplink {
         }),
         1 => Uplink::Health(FilterHealth {
             t_us,
-            aid: subnav_wire::AidStatuses { dvl: subnav_wire::AidStatus { nis: r.f(), test_ratio: r.f(), noise_var: r.f(), ..Default::default() }, ..Default::default() },
+            aid: subnav_wire::AidStatuses {
+                dvl: subnav_wire::AidStatus { nis: r.f(), test_ratio: r.f(), noise_var: r.f(), ..Default::default() },
+                ..Default::default()
+            },
             imu_q_scale: r.f(),
             lambda: r.f(),
             q_diag: [r.f(); 5],

@@ -10,14 +10,18 @@ use subnav_fgo::kitti;
 use subnav_fgo::kitti_run::{self, Faults, KittiConfig};
 
 fn main() -> anyhow::Result<()> {
-    let python = PathBuf::from(std::env::var_os("SUBNAV_PEER_PYTHON").ok_or_else(|| anyhow::anyhow!("set SUBNAV_PEER_PYTHON to the peer venv's python"))?);
+    let python = PathBuf::from(
+        std::env::var_os("SUBNAV_PEER_PYTHON").ok_or_else(|| anyhow::anyhow!("set SUBNAV_PEER_PYTHON to the peer venv's python"))?,
+    );
     let data = kitti::load_dir(&kitti::gtsam_data_dir(&python)?)?;
     let args: Vec<String> = std::env::args().collect();
     let mut base = KittiConfig::default();
     if let Some(d) = args.iter().position(|a| a == "--duration-s").and_then(|i| args.get(i + 1)) {
         base.duration_s = d.parse()?;
     }
-    println!("| fixes | estimator | gate | held-out RMSE m | max m | NEES (3) | >99 % | fused / refused | resets pos / vel | IMU Q scale | diverged |");
+    println!(
+        "| fixes | estimator | gate | held-out RMSE m | max m | NEES (3) | >99 % | fused / refused | resets pos / vel | IMU Q scale | diverged |"
+    );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (name, faults) in [
         ("clean", Faults::default()),

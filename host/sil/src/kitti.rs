@@ -105,7 +105,19 @@ pub fn run_estimator(data: &KittiData, sc: &Scenario, cfg: &KittiConfig, gate: b
         if std::env::var_os("SUBNAV_KITTI_DEBUG").is_some() {
             let h = est.health(0);
             let pe = enu_to_ned(&e.recorded.pos_enu_m);
-            eprintln!("t {:.1} role {:?} err_ned {:.2} {:.2} {:.2} sig {:?} vel {:?} nis {:?} q {:.1} rej {}", e.t_s - t0, e.role, sol.pos_ned_m[0] as f64 - pe.x, sol.pos_ned_m[1] as f64 - pe.y, sol.pos_ned_m[2] as f64 - pe.z, sol.sigma_pos_m, sol.vel_ned_mps, h.aid.position.nis, est.imu_q_scale(), h.gate_rejects);
+            eprintln!(
+                "t {:.1} role {:?} err_ned {:.2} {:.2} {:.2} sig {:?} vel {:?} nis {:?} q {:.1} rej {}",
+                e.t_s - t0,
+                e.role,
+                sol.pos_ned_m[0] as f64 - pe.x,
+                sol.pos_ned_m[1] as f64 - pe.y,
+                sol.pos_ned_m[2] as f64 - pe.z,
+                sol.sigma_pos_m,
+                sol.vel_ned_mps,
+                h.aid.position.nis,
+                est.imu_q_scale(),
+                h.gate_rejects
+            );
         }
         // The solution is at the last IMU sample (<= 10 ms before the epoch): carry it there.
         let dt = e.t_s - ((sol.t_us as f64 - 1e6) * 1e-6 + t0);

@@ -82,7 +82,12 @@ fn an_imu_noisier_than_the_tuning_does_not_lose_the_head() {
     check_bounds(&r1);
     for (scale, factor) in [(30.0, 3.0), (100.0, 10.0)] {
         let r = run_dive_native(&Scenario { imu_noise_scale: scale, ..base.clone() });
-        eprintln!("noise x{scale}: RMS {:.2} m (x1: {:.2} m), {:.1} % within 3 sigma", r.horizontal_rms_err_m, r1.horizontal_rms_err_m, 100.0 * r.within_3_sigma);
+        eprintln!(
+            "noise x{scale}: RMS {:.2} m (x1: {:.2} m), {:.1} % within 3 sigma",
+            r.horizontal_rms_err_m,
+            r1.horizontal_rms_err_m,
+            100.0 * r.within_3_sigma
+        );
         assert_eq!(r.nonfinite_values, 0);
         assert!(r.within_3_sigma >= 0.90, "x{scale}: position consistency {}", r.within_3_sigma);
         assert!(r.heading_within_3_sigma >= 0.90, "x{scale}: heading consistency {}", r.heading_within_3_sigma);

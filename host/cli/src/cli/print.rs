@@ -78,7 +78,14 @@ pub fn text(m: &Uplink) -> String {
                 .iter()
                 .map(|s| {
                     let a = h.aid.get(*s);
-                    format!("{}: ratio={:.2} fused={}/{} resets={}", s.name(), a.test_ratio, a.fused_count, a.fused_count + a.refused_count, a.resets)
+                    format!(
+                        "{}: ratio={:.2} fused={}/{} resets={}",
+                        s.name(),
+                        a.test_ratio,
+                        a.fused_count,
+                        a.fused_count + a.refused_count,
+                        a.resets
+                    )
                 })
                 .collect::<Vec<_>>()
                 .join(", "),

@@ -44,7 +44,6 @@ pub const MAP: &str = "/subnav/map";
 /// The frame every pose and scene entity is drawn in.
 pub const FRAME: &str = "ned";
 
-
 /// Seconds of dive per trajectory segment.
 const SEGMENT_US: u64 = 1_000_000;
 
