@@ -135,6 +135,24 @@ pub fn dvl_sigma_mps(fom_mps: f32, vel_mps: [f32; 3]) -> f32 {
     libm::sqrtf(floor * floor + DVL_SIGMA_SPEED_FRACTION * DVL_SIGMA_SPEED_FRACTION * speed2)
 }
 
+/// The noise a DVL report gets when it sends its own covariance (DVL axes, row-major): that
+/// covariance, its diagonal floored at `DVL_SIGMA_FLOOR_MPS`, plus the model error no DVL
+/// reports (residual scale and alignment, `DVL_SIGMA_SPEED_FRACTION` of the speed): the same
+/// terms as [`dvl_sigma_mps`]. A non-finite entry stays as it is (`f32::max` would turn a NaN
+/// into the floor): the filter refuses and counts such a report.
+pub fn dvl_covariance_m2ps2(c: [f32; 9], vel_mps: [f32; 3]) -> [f32; 9] {
+    let speed2: f32 = vel_mps.iter().map(|v| v * v).sum();
+    let model = DVL_SIGMA_SPEED_FRACTION * DVL_SIGMA_SPEED_FRACTION * speed2;
+    let floor = DVL_SIGMA_FLOOR_MPS * DVL_SIGMA_FLOOR_MPS;
+    let mut r = c;
+    for k in [0, 4, 8] {
+        if r[k].is_finite() {
+            r[k] = r[k].max(floor) + model;
+        }
+    }
+    r
+}
+
 /// The navigation filter's default tuning, from the grades above.
 pub fn nav_config() -> NavConfig {
     let mut cfg = NavConfig::default();

@@ -308,8 +308,6 @@ pub struct Estimator {
     /// its length.
     dvl_refused_since_us: Option<u64>,
     dvl_refused_run: u32,
-    /// Velocity resets done (a working DVL refused for longer than `DVL_RESET_AFTER_S`).
-    pub velocity_resets: u32,
     /// The compass's wave-error tracker (`compass::WaveSigma`), its heading reference carried by
     /// the gyro's turn about the vertical between fixes, and the last IMU time.
     wave: compass::WaveSigma,
@@ -360,7 +358,6 @@ impl Estimator {
             aid: AidStatuses::default(),
             dvl_refused_since_us: None,
             dvl_refused_run: 0,
-            velocity_resets: 0,
             imu_correction: None,
             wave: compass::WaveSigma::default(),
             last_imu_us: None,
@@ -426,7 +423,6 @@ impl Estimator {
         self.last_gyro_radps = [0.0; 3];
         self.dvl_refused_since_us = None;
         self.dvl_refused_run = 0;
-        self.velocity_resets = 0;
         self.aid = AidStatuses::default();
         self.wave.reset();
         self.adaptive_r = AdaptiveHeadingR::new(self.adaptive_r.on);
@@ -829,7 +825,7 @@ impl Estimator {
         let m = DvlMeasurement {
             t_us: s.t_us,
             vel_dvl_mps: s.vel_dvl_mps.map(|v| v / self.dvl_scale),
-            covariance_m2ps2: s.covariance_m2ps2.map(|c| dvl_covariance(c, s.vel_dvl_mps)),
+            covariance_m2ps2: s.covariance_m2ps2.map(|c| head::dvl_covariance_m2ps2(c, s.vel_dvl_mps)),
             fom_mps: Some(head::dvl_sigma_mps(s.fom_mps, s.vel_dvl_mps)),
             gyro_radps: self.last_gyro_radps,
         };
@@ -870,7 +866,6 @@ impl Estimator {
         let att_var = nav.covariance().fixed_view::<3, 3>(subnav_core::nav::state::ATT, subnav_core::nav::state::ATT).trace();
         let var = sigma * sigma + v_ned.norm_squared() * (att_var + DVL_RESET_ATTITUDE_SIGMA_RAD * DVL_RESET_ATTITUDE_SIGMA_RAD);
         if nav.reset_velocity(v_ned.into(), [var; 3]).is_ok() {
-            self.velocity_resets = self.velocity_resets.wrapping_add(1);
             self.aid.dvl.resets = self.aid.dvl.resets.wrapping_add(1);
         }
         self.dvl_refused_since_us = None;
@@ -938,25 +933,6 @@ fn record(aid: &mut AidStatuses, src: AidSource, t_us: u64, rep: &UpdateReport<f
     } else {
         st.refused_count = st.refused_count.wrapping_add(1);
     }
-}
-
-/// The noise a DVL report gets when it sends its own covariance: that covariance, its diagonal
-/// floored at the head's DVL floor, plus the head's model error that no DVL reports (its
-/// residual scale and alignment, a fraction of the speed; `head::dvl_sigma_mps`). A non-finite
-/// or not positive definite covariance goes through as it is: the filter refuses it and counts
-/// it (`NavFilter::update_dvl`).
-fn dvl_covariance(c: [f32; 9], vel_dvl_mps: [f32; 3]) -> [f32; 9] {
-    let speed2: f32 = vel_dvl_mps.iter().map(|v| v * v).sum();
-    let model = head::DVL_SIGMA_SPEED_FRACTION * head::DVL_SIGMA_SPEED_FRACTION * speed2;
-    let floor = head::DVL_SIGMA_FLOOR_MPS * head::DVL_SIGMA_FLOOR_MPS;
-    let mut r = c;
-    for k in [0, 4, 8] {
-        // `f32::max` would turn a NaN into the floor: a broken covariance must stay broken.
-        if r[k].is_finite() {
-            r[k] = r[k].max(floor) + model;
-        }
-    }
-    r
 }
 
 /// The DVL noise variance for its status: the mean of its covariance's diagonal when it sent

@@ -149,7 +149,7 @@ pub fn run_estimator(data: &KittiData, sc: &Scenario, cfg: &KittiConfig, gate: b
         fixes_refused: refused,
         fix_errors: errors,
         position_resets: h.position_resets,
-        velocity_resets: est.velocity_resets,
+        velocity_resets: h.aid.dvl.resets,
         imu_q_scale: est.imu_q_scale(),
         diverged,
         pos_enu_m: pos,
