@@ -17,8 +17,13 @@
 //! `RESET_POSITION_FIXES` refused in a row whose innovations (the fix minus the estimate at its
 //! time of validity) agree within the fixes' own noise mean the position is lost, not the fixes
 //! wrong: the estimator moves it by their mean ([`NavFilter15::reset_position`]); a run that
-//! disagrees starts over from its last refusal (USBL multipath comes one fix at a time). Depth is
-//! positive down (NED z).
+//! disagrees starts over from its last refusal (USBL multipath comes one fix at a time). With
+//! nothing else holding the position (no DVL fused in 5 s), the position aid has a timeout: fixes
+//! refused for `POSITION_TIMEOUT_S` (two or more) reset the position to the latest; a fix that is
+//! the first refused since the last fused one and comes `POSITION_TIMEOUT_S` or more after it
+//! (fixes sparser than the timeout: no run of refusals can form) is fused with the covariance
+//! faded by its NIS instead, so the correction also reaches the velocity and attitude that
+//! walked the position away. Depth is positive down (NED z).
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use subnav_core::compass::{self, CompassInput, UnitModel};
@@ -62,6 +67,8 @@ const DVL_RESET_ATTITUDE_SIGMA_RAD: f32 = 0.05;
 /// refused fixes agree (they cannot, on a vehicle whose filter drifts away between them).
 const POSITION_TIMEOUT_FIXES: u32 = 2;
 const POSITION_TIMEOUT_S: f32 = 9.0;
+/// Bound of the fading factor of the position aid's timeout for sparse fixes.
+const FADE_LAMBDA_MAX: f32 = 1.0e4;
 const DVL_HOLDS_POSITION_US: u64 = 5_000_000;
 /// Yaw 1-sigma (at least) after a position timeout reset.
 const POSITION_RESET_YAW_SIGMA_RAD: f32 = 0.5;
@@ -764,6 +771,40 @@ impl Estimator {
         self.position_refused_run = self.position_refused_run.saturating_add(1);
         let refused_s = t_us.saturating_sub(since) as f32 * 1e-6;
         let dvl_holds = self.last_dvl_fused_us.is_some_and(|t| nav.t_us().saturating_sub(t) < DVL_HOLDS_POSITION_US);
+        let unaided_s = t_us.saturating_sub(self.aid.position.last_fused_us) as f32 * 1e-6;
+        if !dvl_holds && self.position_refused_run == 1 && unaided_s >= POSITION_TIMEOUT_S {
+            // Fixes sparser than the timeout (e.g. one per 10 s, the only aid): the first refusal
+            // already comes after `POSITION_TIMEOUT_S` unaided, and waiting for a second one
+            // would coast twice as long. Nothing else holds the position, so the filter is the
+            // likelier to be wrong: P is faded by `lambda = NIS / 3` (the seed's fading factor,
+            // the factor that brings this fix's NIS to its chi-square mean) and the fix fused,
+            // so the correction reaches velocity, attitude and biases through their
+            // correlations with the position (a reset would drop them). If that is refused
+            // too, the fading is undone (a refused update changes nothing) and the fix counts
+            // towards the reset below.
+            let lambda = (rep.nis / 3.0).clamp(1.0, FADE_LAMBDA_MAX);
+            let p_before = *nav.covariance();
+            if nav.set_covariance(p_before * lambda).is_ok() {
+                match nav.update_position(t_us, pos_ned_m, cov_ned_m2) {
+                    Ok(faded) if faded.accepted => {
+                        record(&mut self.aid, AidSource::Position, t_us, &faded, gate, var);
+                        self.position_resets = self.position_resets.wrapping_add(1);
+                        self.aid.position.resets = self.aid.position.resets.wrapping_add(1);
+                        // P was `lambda` too small: the IMU noise scale takes that ratio at
+                        // once (covariance matching in one step, bounded as the reset's), so P
+                        // does not shrink back to where the gate refused the fix.
+                        nav.seed_imu_q_scale(nav.imu_q_scale() * lambda.min(100.0));
+                        self.refused_positions = PositionRun::default();
+                        self.position_refused_since_us = None;
+                        self.position_refused_run = 0;
+                        return Ok(());
+                    }
+                    _ => {
+                        let _ = nav.set_covariance(p_before);
+                    }
+                }
+            }
+        }
         if !dvl_holds && self.position_refused_run >= POSITION_TIMEOUT_FIXES && refused_s >= POSITION_TIMEOUT_S {
             // Nothing else holds the position and the fixes have been refused for longer than a
             // run of outliers lasts: the filter is lost (PX4's reset on a timeout of refused
@@ -1169,6 +1210,35 @@ mod tests {
         fix(&mut e, last_k + 1, 60.2, -19.8);
         assert_eq!(e.refused_positions.n, 0);
         assert!(e.solution(0).pos_ned_m.iter().all(|v| v.is_finite()));
+    }
+
+    /// Without a DVL, a fix that is the first refused since the last fused one and comes
+    /// `POSITION_TIMEOUT_S` or more after it is fused with the covariance faded: the head is 300 m
+    /// north of where its IMU says after 20 s without a fix. The fix reaches the position and,
+    /// through its correlation, the velocity; the IMU noise scale takes the fading ratio.
+    #[test]
+    fn a_sparse_fix_refused_after_the_timeout_is_fused_with_a_faded_covariance() {
+        let cov = [0.25, 0.0, 0.0, 0.25, 0.0, 0.25];
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 20.0, |_| Some(deg(40.0)));
+        let start = e.solution(0).pos_ned_m;
+        let (rejects, q0) = (e.health(0).gate_rejects, e.imu_q_scale());
+        run(&mut e, 20.0, 40.0, |_| Some(deg(40.0)));
+        e.on_position_fix(40_000_000, [start[0] + 300.0, start[1], start[2]], cov).unwrap();
+        let h = e.health(0);
+        assert_eq!(h.gate_rejects, rejects + 1, "the gate refused the fix");
+        assert!(h.aid.position.fused && h.aid.position.resets == 1, "then the timeout fused it: {:?}", h.aid.position);
+        let s = e.solution(0);
+        assert!((s.pos_ned_m[0] - start[0] - 300.0).abs() < 1.0, "at the fix: {:?}", s.pos_ned_m);
+        assert!(s.vel_ned_mps[0] > 0.5, "the velocity corrected northward: {:?}", s.vel_ned_mps);
+        assert!(e.imu_q_scale() > 10.0 * q0, "IMU noise scale {} (was {q0})", e.imu_q_scale());
+        assert!(s.sigma_pos_m.iter().chain(s.sigma_vel_mps.iter()).all(|v| v.is_finite() && *v > 0.0));
+        // A second fix 2 s later, far off again (an outlier right after): refused, and not
+        // faded in (it is not a sparse fix: one was fused 2 s ago).
+        run(&mut e, 40.0, 42.0, |_| Some(deg(40.0)));
+        e.on_position_fix(42_000_000, [start[0] + 900.0, start[1], start[2]], cov).unwrap();
+        let h = e.health(0);
+        assert!(!h.aid.position.fused && h.aid.position.resets == 1, "{:?}", h.aid.position);
     }
 
     /// The compass's scatter grows tenfold (0.3 -> 3 deg, white) after 60 s: the adaptive heading

@@ -20,7 +20,7 @@ fn main() -> anyhow::Result<()> {
         base.duration_s = d.parse()?;
     }
     println!(
-        "| fixes | estimator | gate | held-out RMSE m | max m | NEES (3) | >99 % | fused / refused | resets pos / vel | IMU Q scale | diverged |"
+        "| fixes | estimator | gate | held-out RMSE m | max m | NEES (3) | >99 % | fused / refused (gate refused) | resets pos / vel | IMU Q scale | diverged |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (name, faults) in [
@@ -32,7 +32,7 @@ fn main() -> anyhow::Result<()> {
         for gate in [true, false] {
             let r = subnav_sil::kitti::run_estimator(&data, &sc, &cfg, gate)?;
             println!(
-                "| {name} | Estimator (moving start) | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} / {} | {} / {} | {:.1} | {} |",
+                "| {name} | Estimator (moving start) | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} / {} ({}) | {} / {} | {:.1} | {} |",
                 if gate { "on" } else { "off" },
                 r.score.rmse_heldout_m,
                 r.score.max_heldout_m,
@@ -40,6 +40,7 @@ fn main() -> anyhow::Result<()> {
                 r.nees_above_99,
                 r.fixes_fused,
                 r.fixes_refused,
+                r.fixes_gate_refused,
                 r.position_resets,
                 r.velocity_resets,
                 r.imu_q_scale,

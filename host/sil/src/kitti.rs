@@ -20,8 +20,11 @@ pub struct EstimatorRun {
     /// filter) and the fraction above the 99 % chi-square(3) quantile.
     pub nees_mean: f64,
     pub nees_above_99: f64,
+    /// Fixes fused (at once or by the position aid's timeout) and left out.
     pub fixes_fused: usize,
     pub fixes_refused: usize,
+    /// Fixes the gate refused (some then fused by the timeout, with the covariance faded).
+    pub fixes_gate_refused: usize,
     pub fix_errors: usize,
     pub position_resets: u32,
     pub velocity_resets: u32,
@@ -84,7 +87,7 @@ pub fn run_estimator(data: &KittiData, sc: &Scenario, cfg: &KittiConfig, gate: b
     let var = (cfg.fix_sigma_m * cfg.fix_sigma_m) as f32;
     let cov = [var, 0.0, 0.0, var, 0.0, var];
     let r_fix = Matrix3::identity() * cfg.fix_sigma_m.powi(2);
-    let (mut fused, mut refused, mut errors) = (0, 0, 0);
+    let (mut fused, mut refused, mut gate_refused, mut errors) = (0, 0, 0, 0);
     let mut pos = Vec::with_capacity(sc.epochs.len());
     let (mut nees, mut diverged) = (Vec::new(), false);
     for e in &sc.epochs {
@@ -96,8 +99,16 @@ pub fn run_estimator(data: &KittiData, sc: &Scenario, cfg: &KittiConfig, gate: b
             let z = enu_to_ned(&e.measured_enu_m);
             let before = est.health(0).gate_rejects;
             match est.on_position_fix(us(e.t_s), [z.x as f32, z.y as f32, z.z as f32], cov) {
-                Ok(()) if est.health(0).gate_rejects == before => fused += 1,
-                Ok(()) => refused += 1,
+                Ok(()) => {
+                    let h = est.health(0);
+                    gate_refused += (h.gate_rejects != before) as usize;
+                    // Fused at once, or by the position aid's timeout after the gate refused it.
+                    if h.aid.position.fused && h.aid.position.t_us == us(e.t_s) {
+                        fused += 1;
+                    } else {
+                        refused += 1;
+                    }
+                }
                 Err(_) => errors += 1,
             }
         }
@@ -147,6 +158,7 @@ pub fn run_estimator(data: &KittiData, sc: &Scenario, cfg: &KittiConfig, gate: b
         nees_above_99,
         fixes_fused: fused,
         fixes_refused: refused,
+        fixes_gate_refused: gate_refused,
         fix_errors: errors,
         position_resets: h.position_resets,
         velocity_resets: h.aid.dvl.resets,
