@@ -422,6 +422,12 @@ impl App {
         }
     }
 
+    /// A fault the board itself saw (a receive queue that overflowed, a UART framing error:
+    /// `subnav_firmware::uart_queue`): counted and reported like the sensors' own.
+    pub fn board_fault(&mut self, t_us: u64, source: FaultSource, kind: FaultKind, sink: &mut impl TelemetrySink) {
+        self.fault(t_us, SensorFault { source, kind }, sink);
+    }
+
     /// Read the sensors that are due at `now_us` and run the estimator on them.
     #[inline(never)] // keeps its temporaries out of the board loop's stack frame (see PERFORMANCE.md, stack)
     pub fn sensor_tick(&mut self, now_us: u64, sensors: &mut impl SensorSuite, sink: &mut impl TelemetrySink) {

@@ -43,6 +43,13 @@ impl i2c::Error for HalBusError {
     }
 }
 
+/// For a board's UART wrapper (the DVL's), whose HAL error is foreign too.
+impl embedded_io::Error for HalBusError {
+    fn kind(&self) -> embedded_io::ErrorKind {
+        embedded_io::ErrorKind::Other
+    }
+}
+
 impl spi::Error for HalBusError {
     fn kind(&self) -> spi::ErrorKind {
         spi::ErrorKind::Other

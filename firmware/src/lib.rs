@@ -18,6 +18,7 @@ pub mod sensors;
 pub mod store;
 pub mod telemetry;
 pub mod time;
+pub mod uart_queue;
 
 #[cfg(test)]
 mod error_tests;

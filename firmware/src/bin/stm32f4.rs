@@ -1,6 +1,10 @@
 //! Board: STM32F405/F407 sensor head (stm32f4xx-hal). Thin glue around [`subnav_firmware::App`]:
 //! - 168 MHz from an 8 MHz HSE crystal (change `HSE_HZ` for other boards);
-//! - telemetry and commands on USART2 (PA2 TX, PA3 RX) at 460800 baud;
+//! - telemetry and commands on USART2 (PA2 TX, PA3 RX) at 460800 baud; received bytes go from
+//!   the RXNE interrupt into a 1-KiB queue (`subnav_firmware::uart_queue`: 22 ms of a
+//!   back-to-back downlink), drained by the board loop; losses (queue full, UART overrun,
+//!   framing) are reported as `Fault(Link, Overrun | Malformed)`. Telemetry is still written
+//!   byte by byte from the loop (blocking; a transmit queue is not built yet);
 //! - defmt logs over RTT (probe-rs), panics through panic-probe;
 //! - time from SysTick at 1 kHz plus the sub-tick counter;
 //! - sensors (the same drivers and `HeadSuite` as the QEMU board, only the buses differ): the
@@ -8,12 +12,17 @@
 //!   ADS1115 (0x48-0x4B) and the MS5837-30BA (0x76) sharing I2C1 (PB6 SCL, PB7 SDA, 400 kHz)
 //!   through embedded-hal-bus's `RefCellDevice`, each bus wrapped in `hal_bus` so its errors
 //!   map to telemetry fault kinds;
-//! - the DVL: not wired on this board yet (`NoDvl`: the head runs without it); the QEMU board
-//!   and the native runs have it on UART 0;
+//! - the DVL (Water Linked DVL-A50) on USART3 (PB10 TX, PB11 RX) at 115200 baud, received
+//!   through its own interrupt-fed queue (losses: `Fault(Dvl, Overrun | Malformed)`);
+//! - the store (calibrations, settings): the W25Q16JV on SPI2 (PB13 SCK, PB14 MISO, PB15 MOSI,
+//!   PB12 chip select, 8 MHz, mode 0) through `FlashStore`; a chip that does not answer boots
+//!   on defaults with a `Store` fault (`FailedStore`);
 //! - the camera trigger line: PB0, push-pull, pulsed high for each frame;
 //! - stack painting (cortex-m-stack): the peak is logged over defmt every 60 s;
 //! - the independent watchdog (IWDG, on the LSI: it runs even if the main clock fails), fed once
-//!   per pass of the board loop; the reset cause from `RCC_CSR` (read, then cleared) goes in `Boot`;
+//!   per pass of the board loop and started after the store's boot (reformatting a damaged store
+//!   erases sector after sector, longer than its period); the reset cause from `RCC_CSR` (read,
+//!   then cleared) goes in `Boot`;
 //! - the warm-start record (`subnav_firmware::estimator::warm`) in the 4 KiB backup SRAM
 //!   (0x4002_4000), which keeps its contents through every reset while VDD is up (no backup
 //!   regulator needed for that): after a watchdog, brown-out or software reset the head starts
@@ -21,33 +30,39 @@
 //!
 //! Why stm32f4xx-hal rather than embassy-stm32: the application core is synchronous and
 //! scheduled by the tick, a blocking HAL keeps the board file small, and it builds in a fraction
-//! of embassy-stm32's time (matters for CI on two cores). Built in CI; not run there (no board).
+//! of embassy-stm32's time (matters for CI on two cores). Built in CI; not run there (no board,
+//! and no emulator in reach runs it: docs/RELIABILITY.md, "The STM32 board under an emulator").
 #![no_std]
 #![no_main]
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use core::cell::RefCell;
+use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
 use embedded_hal_bus::i2c::RefCellDevice;
 use embedded_hal_bus::spi::ExclusiveDevice;
+use heapless::spsc::Queue;
 use panic_probe as _;
 use stm32f4xx_hal::{
-    pac,
+    pac::{self, interrupt},
     prelude::*,
     rcc::Config,
-    serial::{self, Serial},
+    serial::{self, RxListen, Serial},
     spi::{Mode, Phase, Polarity},
     watchdog::IndependentWatchdog,
 };
+use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::estimator::warm::WARM_RECORD_BYTES;
-use subnav_firmware::hal_bus::{HalI2c, HalSpi};
-use subnav_firmware::head_suite::{HeadSuite, NoDvl};
+use subnav_firmware::hal_bus::{HalBusError, HalI2c, HalSpi};
+use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::time::TickClock;
+use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats};
 use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
-use subnav_wire::{Board, ResetCause};
+use subnav_wire::{Board, FaultKind, FaultSource, ResetCause};
 
 const HSE_HZ: u32 = 8_000_000;
 const CORE_HZ: u32 = 168_000_000;
@@ -78,6 +93,100 @@ fn take_reset_cause(rcc: &pac::RCC) -> ResetCause {
     };
     rcc.csr().modify(|_, w| w.rmvf().set_bit());
     cause
+}
+
+/// Receive queues: 1 KiB for the downlink (22 ms at 460,800 baud), 512 B for the DVL (44 ms
+/// at 115,200 baud); the board loop drains them every millisecond.
+const DOWNLINK_QUEUE: usize = 1024;
+const DVL_QUEUE: usize = 512;
+static DOWNLINK_STATS: RxStats = RxStats::new();
+static DVL_STATS: RxStats = RxStats::new();
+static DOWNLINK_RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
+static DVL_RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
+
+/// Move every received byte (and error flag) of a USART into its queue.
+fn service_rx(usart: &pac::usart1::RegisterBlock, rx: &Mutex<RefCell<Option<RxProducer<'static>>>>) {
+    cortex_m::interrupt::free(|cs| {
+        let mut slot = rx.borrow(cs).borrow_mut();
+        // Bounded: the data register holds one byte, so this runs once or twice per interrupt.
+        for _ in 0..4 {
+            let sr = usart.sr().read();
+            if sr.rxne().bit_is_clear() {
+                break;
+            }
+            let framing = sr.fe().bit_is_set() || sr.nf().bit_is_set() || sr.pe().bit_is_set();
+            let overrun = sr.ore().bit_is_set();
+            // Reading DR after SR clears RXNE and the error flags.
+            let byte = usart.dr().read().dr().bits() as u8;
+            if let Some(p) = slot.as_mut() {
+                if overrun {
+                    p.on_error(RxError::Overrun);
+                }
+                if framing {
+                    p.on_error(RxError::Framing);
+                } else {
+                    p.on_byte(byte);
+                }
+            }
+        }
+    });
+}
+
+#[interrupt]
+fn USART2() {
+    // SAFETY: read-only access to the status and data registers; the loop never reads them
+    // (its `Rx` half is unused once the interrupt is enabled).
+    service_rx(unsafe { &*pac::USART2::ptr() }, &DOWNLINK_RX);
+}
+
+#[interrupt]
+fn USART3() {
+    // SAFETY: as for USART2; the DVL's `Tx` half only writes DR/reads TXE.
+    service_rx(unsafe { &*pac::USART3::ptr() }, &DVL_RX);
+}
+
+/// The DVL's UART for its driver: reads from the interrupt-fed queue, writes (its few commands)
+/// straight to USART3.
+struct DvlUart {
+    rx: RxConsumer<'static>,
+    tx: serial::Tx<pac::USART3>,
+}
+
+impl embedded_io::ErrorType for DvlUart {
+    type Error = HalBusError;
+}
+
+impl embedded_io::Read for DvlUart {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        Ok(self.rx.drain(buf))
+    }
+}
+
+impl embedded_io::ReadReady for DvlUart {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        Ok(embedded_io::ReadReady::read_ready(&mut self.rx).unwrap_or(false))
+    }
+}
+
+impl embedded_io::Write for DvlUart {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        embedded_io::Write::write(&mut self.tx, buf).map_err(|_| HalBusError(FaultKind::BusOther))
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        embedded_io::Write::flush(&mut self.tx).map_err(|_| HalBusError(FaultKind::BusOther))
+    }
+}
+
+/// New losses of a receive queue as faults (queue full or UART overrun: `Overrun`; framing,
+/// noise, parity: `Malformed`).
+fn report_rx_losses(app: &mut App, t_us: u64, stats: &RxStats, source: FaultSource, sink: &mut impl TelemetrySink) {
+    let lost = stats.take_new();
+    if lost.overrun > 0 {
+        app.board_fault(t_us, source, FaultKind::Overrun, sink);
+    }
+    if lost.framing > 0 {
+        app.board_fault(t_us, source, FaultKind::Malformed, sink);
+    }
 }
 
 #[exception]
@@ -145,8 +254,6 @@ fn main() -> ! {
     };
     let reset_cause = take_reset_cause(&dp.RCC);
     let warm = backup_sram(&dp.RCC, &dp.PWR);
-    let mut watchdog = IndependentWatchdog::new(dp.IWDG);
-    watchdog.start(WATCHDOG_PERIOD_MS.millis());
     let mut rcc = dp.RCC.freeze(Config::hse(HSE_HZ.Hz()).sysclk(CORE_HZ.Hz()));
 
     core.SYST.set_clock_source(SystClkSource::Core);
@@ -168,12 +275,55 @@ fn main() -> ! {
         };
     let (tx, mut rx) = serial.split();
     let mut sink = UartSink(tx);
+    let Some(downlink_queue) = cortex_m::singleton!(: Queue<u8, DOWNLINK_QUEUE> = Queue::new()) else {
+        defmt::panic!("downlink queue taken twice");
+    };
+    let (producer, downlink_consumer) = downlink_queue.split();
+    let mut downlink = RxConsumer::new(downlink_consumer);
+    cortex_m::interrupt::free(|cs| DOWNLINK_RX.borrow(cs).replace(Some(RxProducer::new(producer, &DOWNLINK_STATS))));
+    rx.listen();
+
+    // The DVL on USART3.
+    let dvl_serial: Serial<pac::USART3> =
+        match dp.USART3.serial((gpiob.pb10, gpiob.pb11), serial::Config::default().baudrate(115_200.bps()), &mut rcc) {
+            Ok(s) => s,
+            Err(_) => defmt::panic!("USART3 configuration rejected"),
+        };
+    let (dvl_tx, mut dvl_rx) = dvl_serial.split();
+    let Some(dvl_queue) = cortex_m::singleton!(: Queue<u8, DVL_QUEUE> = Queue::new()) else {
+        defmt::panic!("DVL queue taken twice");
+    };
+    let (producer, dvl_consumer) = dvl_queue.split();
+    cortex_m::interrupt::free(|cs| DVL_RX.borrow(cs).replace(Some(RxProducer::new(producer, &DVL_STATS))));
+    dvl_rx.listen();
+    // SAFETY: the handlers only touch their own USART's status/data registers and queue.
+    unsafe {
+        cortex_m::peripheral::NVIC::unmask(pac::Interrupt::USART2);
+        cortex_m::peripheral::NVIC::unmask(pac::Interrupt::USART3);
+    }
 
     let mut clock = Clock(TickClock::new(CORE_HZ));
     let mut app = App::new(Board::Stm32F405);
     app.set_reset_cause(reset_cause);
     defmt::info!("board stm32f405, reset cause {=?}", reset_cause);
-    app.boot(clock.now_us(), &mut sink);
+
+    // The store: the W25Q16JV on SPI2.
+    let spi2 = dp.SPI2.spi(
+        (Some(gpiob.pb13), Some(gpiob.pb14), Some(gpiob.pb15)),
+        Mode { polarity: Polarity::IdleLow, phase: Phase::CaptureOnFirstTransition },
+        8.MHz(),
+        &mut rcc,
+    );
+    let Ok(flash_dev) = ExclusiveDevice::new(spi2, gpiob.pb12.into_push_pull_output(), CycleDelay);
+    let (mut flash_store, mut failed_store) = (None, None);
+    let store: &mut dyn RecordStore = match W25q::new(HalSpi(flash_dev)) {
+        Ok(flash) => flash_store.insert(FlashStore::new(flash)),
+        Err(e) => failed_store.insert(FailedStore(e.fault_kind())),
+    };
+    app.boot_with_store(clock.now_us(), store, &mut sink);
+    // Started after the store's boot (a reformat takes longer than its period).
+    let mut watchdog = IndependentWatchdog::new(dp.IWDG);
+    watchdog.start(WATCHDOG_PERIOD_MS.millis());
     // The IWDG resets at most a period after the last feed; the reset and this boot add little.
     let reset_gap_max_s = 2.0 * WATCHDOG_PERIOD_MS as f32 * 1e-3;
     if let Err(e) = app.warm_start_at_boot(warm.as_slice(), reset_gap_max_s) {
@@ -195,7 +345,7 @@ fn main() -> ! {
         HalSpi(imu_dev),
         core::array::from_fn(|_| HalI2c(RefCellDevice::new(&i2c))),
         HalI2c(RefCellDevice::new(&i2c)),
-        None::<NoDvl>,
+        Some(DvlUart { rx: RxConsumer::new(dvl_consumer), tx: dvl_tx }),
         &mut delay,
     )
     .with_camera_trigger(gpiob.pb0.into_push_pull_output());
@@ -212,29 +362,20 @@ fn main() -> ! {
     let mut busy_us: u64 = 0;
     loop {
         let wake_us = clock.now_us();
-        let mut buf = [0u8; 32];
-        let mut n = 0;
-        while n < buf.len() {
-            match rx.read() {
-                Ok(b) => {
-                    if let Some(slot) = buf.get_mut(n) {
-                        *slot = b;
-                    }
-                    n += 1;
-                }
-                Err(nb::Error::WouldBlock) => break,
-                // Overrun/framing/noise: the byte is lost; the frame CRC will catch it.
-                Err(nb::Error::Other(_)) => break,
+        let mut buf = [0u8; 64];
+        loop {
+            let n = downlink.drain(&mut buf);
+            match buf.get(..n) {
+                Some(bytes) if !bytes.is_empty() => app.on_downlink_bytes(wake_us, bytes, &mut sink),
+                _ => break,
             }
         }
-        if let Some(bytes) = buf.get(..n) {
-            if !bytes.is_empty() {
-                app.on_downlink_bytes(wake_us, bytes, &mut sink);
-            }
-        }
+        report_rx_losses(&mut app, wake_us, &DOWNLINK_STATS, FaultSource::Link, &mut sink);
+        report_rx_losses(&mut app, wake_us, &DVL_STATS, FaultSource::Dvl, &mut sink);
         // Sensors on the 1 ms grid (catching up without bursts after a long iteration).
         if wake_us >= next_tick_us {
             app.sensor_tick(wake_us, &mut suite, &mut sink);
+            app.service_store(wake_us, store, &mut sink);
             app.service_warm_record(wake_us, warm.as_mut_slice());
             next_tick_us = (next_tick_us + 1000).max(wake_us.saturating_sub(wake_us % 1000));
         }
@@ -257,9 +398,7 @@ fn main() -> ! {
             window_start_us = done_us;
             busy_us = 0;
         }
-        // The USART RX interrupt is not enabled yet: wake on the 1 kHz tick and poll (the
-        // hardware FIFO is one byte, so commands above ~8 kbit/s may lose bytes; the CRC and
-        // the command ack make that visible to the host).
+        // Wake on the 1 kHz tick (or a received byte; the queues hold them until the next pass).
         cortex_m::asm::wfi();
     }
 }
