@@ -192,6 +192,29 @@ impl AngleRun {
     }
 }
 
+/// The position aid's fading (see `Estimator::on_position_fix`): `P` scaled by `lambda`, then the
+/// fix fused; if that is refused too, `P` is put back exactly (a refused update changes
+/// nothing) and `None` returned. Out of line: its two 15x15 copies stay off the stack of every
+/// other position fix.
+#[inline(never)]
+fn fuse_position_faded(
+    nav: &mut NavFilter15,
+    t_us: u64,
+    pos_ned_m: [f32; 3],
+    cov_ned_m2: [f32; 6],
+    lambda: f32,
+) -> Option<UpdateReport<f32>> {
+    let p_before = *nav.covariance();
+    nav.set_covariance(p_before * lambda).ok()?;
+    match nav.update_position(t_us, pos_ned_m, cov_ned_m2) {
+        Ok(faded) if faded.accepted => Some(faded),
+        _ => {
+            let _ = nav.set_covariance(p_before);
+            None
+        }
+    }
+}
+
 /// Innovations of a run of gate-refused position fixes (NED, m), with the fixes' variances.
 #[derive(Debug, Clone, Copy, Default)]
 struct PositionRun {
@@ -783,26 +806,18 @@ impl Estimator {
             // too, the fading is undone (a refused update changes nothing) and the fix counts
             // towards the reset below.
             let lambda = (rep.nis / 3.0).clamp(1.0, FADE_LAMBDA_MAX);
-            let p_before = *nav.covariance();
-            if nav.set_covariance(p_before * lambda).is_ok() {
-                match nav.update_position(t_us, pos_ned_m, cov_ned_m2) {
-                    Ok(faded) if faded.accepted => {
-                        record(&mut self.aid, AidSource::Position, t_us, &faded, gate, var);
-                        self.position_resets = self.position_resets.wrapping_add(1);
-                        self.aid.position.resets = self.aid.position.resets.wrapping_add(1);
-                        // P was `lambda` too small: the IMU noise scale takes that ratio at
-                        // once (covariance matching in one step, bounded as the reset's), so P
-                        // does not shrink back to where the gate refused the fix.
-                        nav.seed_imu_q_scale(nav.imu_q_scale() * lambda.min(100.0));
-                        self.refused_positions = PositionRun::default();
-                        self.position_refused_since_us = None;
-                        self.position_refused_run = 0;
-                        return Ok(());
-                    }
-                    _ => {
-                        let _ = nav.set_covariance(p_before);
-                    }
-                }
+            if let Some(faded) = fuse_position_faded(nav, t_us, pos_ned_m, cov_ned_m2, lambda) {
+                record(&mut self.aid, AidSource::Position, t_us, &faded, gate, var);
+                self.position_resets = self.position_resets.wrapping_add(1);
+                self.aid.position.resets = self.aid.position.resets.wrapping_add(1);
+                // P was `lambda` too small: the IMU noise scale takes that ratio at once
+                // (covariance matching in one step, bounded as the reset's), so P does not
+                // shrink back to where the gate refused the fix.
+                nav.seed_imu_q_scale(nav.imu_q_scale() * lambda.min(100.0));
+                self.refused_positions = PositionRun::default();
+                self.position_refused_since_us = None;
+                self.position_refused_run = 0;
+                return Ok(());
             }
         }
         if !dvl_holds && self.position_refused_run >= POSITION_TIMEOUT_FIXES && refused_s >= POSITION_TIMEOUT_S {
