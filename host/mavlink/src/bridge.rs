@@ -94,7 +94,7 @@ impl BridgeConfig {
             surface_depth_m: 0.5,
             max_distance_m: 20_000.0,
             max_fix_age_s: 3.0,
-            min_fix_interval_s: 0.5,
+            min_fix_interval_s: 0.2,
             link_timeout_s: 3.0,
         }
     }
@@ -148,6 +148,8 @@ pub struct BridgeSummary {
     pub origin_changes: u32,
     pub origin_refused: BTreeMap<String, u64>,
     pub head_reboots: u32,
+    /// Companion time (µs, `CLOCK_MONOTONIC`) of the head's time 0 as the bridge maps it at the end.
+    pub head_t0_companion_us: Option<i64>,
 }
 
 impl BridgeSummary {
@@ -235,6 +237,7 @@ impl State {
 
 struct Shared {
     link: Transport,
+    /// When the bridge started (for the session's duration).
     epoch: Instant,
     seq: AtomicU8,
     state: Mutex<State>,
@@ -243,8 +246,7 @@ struct Shared {
 
 impl Shared {
     fn now_us(&self) -> i64 {
-        // Never 0: TIMESYNC reads 0 as "a request".
-        self.epoch.elapsed().as_micros() as i64 + 1
+        companion_now_us()
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, State> {
@@ -265,10 +267,20 @@ impl Shared {
     }
 }
 
+/// The companion's clock, µs: `CLOCK_MONOTONIC` (time since the host booted, as companion
+/// computers stamp MAVLink; any process on the host reads the same clock). Never 0: TIMESYNC
+/// reads 0 as "a request".
+pub fn companion_now_us() -> i64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes the timespec it is given; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    (ts.tv_sec as i64 * 1_000_000 + ts.tv_nsec as i64 / 1000).max(1)
+}
+
 /// A running bridge.
 pub struct Bridge {
     shared: Arc<Shared>,
-    rx: Option<JoinHandle<()>>,
+    rx: Mutex<Option<JoinHandle<()>>>,
 }
 
 impl Bridge {
@@ -299,7 +311,7 @@ impl Bridge {
             Arc::new(Shared { link, epoch: Instant::now(), seq: AtomicU8::new(0), state: Mutex::new(state), stop: AtomicBool::new(false) });
         let sh = shared.clone();
         let rx = std::thread::Builder::new().name("mavlink-rx".into()).spawn(move || receive(&sh)).context("starting the MAVLink receiver")?;
-        Ok(Bridge { shared, rx: Some(rx) })
+        Ok(Bridge { shared, rx: Mutex::new(Some(rx)) })
     }
 
     /// Our clock now, µs.
@@ -318,6 +330,9 @@ impl Bridge {
 
     /// One uplink message, arrived now.
     pub fn on_uplink(&self, m: &Uplink) {
+        if self.shared.stop.load(Ordering::Relaxed) {
+            return;
+        }
         let now = self.shared.now_us();
         let mut st = self.shared.lock();
         if let Some(t) = m.t_us() {
@@ -452,22 +467,28 @@ impl Bridge {
             let at = |q: f64| l[((l.len() - 1) as f64 * q).round() as usize];
             s.latency = Latency { count: l.len() as u64, median_us: at(0.5), p95_us: at(0.95), max_us: *l.last().unwrap_or(&0) };
         }
+        s.head_t0_companion_us = st.head_clock.to_companion_us(0);
         s.link_alive = st.last_heartbeat_rx.is_some_and(|t| t.elapsed().as_secs_f64() < st.cfg.link_timeout_s);
         s
     }
 
-    /// Stop the receiver and return the summary.
-    pub fn finish(mut self) -> BridgeSummary {
+    /// Stop the receiver and return the summary (the bridge sends nothing after this).
+    pub fn finish(&self) -> BridgeSummary {
         let s = self.summary();
         self.stop();
         s
     }
 
-    fn stop(&mut self) {
+    fn stop(&self) {
         self.shared.stop.store(true, Ordering::Relaxed);
-        if let Some(h) = self.rx.take() {
+        if let Some(h) = self.rx.lock().unwrap_or_else(|e| e.into_inner()).take() {
             let _ = h.join();
         }
+    }
+
+    /// Replace what the bridge does with the autopilot's GPS (e.g. `Off` where no downlink reaches the head).
+    pub fn set_gps_input(&self, g: GpsInput) {
+        self.shared.lock().cfg.gps = g;
     }
 }
 
