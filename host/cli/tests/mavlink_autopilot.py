@@ -12,6 +12,7 @@ clock) and behaves like ArduSub towards a companion computer:
   future; and a dead link (silent: no heartbeat, no TIMESYNC answer) for DEAD_S seconds.
 
 Usage: mavlink_autopilot.py PORT OUT.jsonl LAT LON BOOT_OFFSET_S DEAD_FROM_S DEAD_S TIMEOUT_S
+       [GPS_OFFSET_N_M ORIGIN_OFFSET_E_M BAD_INPUT(0|1)]
 Ends TIMEOUT_S after the first message, or 3 s after the last one.
 """
 
@@ -42,6 +43,9 @@ def main():
     port, out_path = int(sys.argv[1]), sys.argv[2]
     lat0, lon0 = float(sys.argv[3]), float(sys.argv[4])
     boot_offset_s, dead_from_s, dead_s, timeout_s = map(float, sys.argv[5:9])
+    gps_offset_n_m = float(sys.argv[9]) if len(sys.argv) > 9 else GPS_OFFSET_N_M
+    origin_offset_e_m = float(sys.argv[10]) if len(sys.argv) > 10 else ORIGIN_OFFSET_E_M
+    bad_input = (sys.argv[11] != "0") if len(sys.argv) > 11 else True
     boot = boot_offset_s  # the autopilot booted this long after the host
 
     def now_us():
@@ -71,8 +75,8 @@ def main():
 
     # 1 deg of latitude / longitude in metres near lat0 (spherical; the test allows for it).
     r = 6371000.0
-    dlat = math.degrees(GPS_OFFSET_N_M / r)
-    dlon_origin = math.degrees(ORIGIN_OFFSET_E_M / (r * math.cos(math.radians(lat0))))
+    dlat = math.degrees(gps_offset_n_m / r)
+    dlon_origin = math.degrees(origin_offset_e_m / (r * math.cos(math.radians(lat0))))
     while True:
         t = time.monotonic()
         if first is not None and (t - first > timeout_s or t - last > 3.0):
@@ -116,7 +120,7 @@ def main():
             valid = now_us() - 50_000
             send(mav.MAVLink_gps_raw_int_message(valid, 3, int((lat0 + dlat) * 1e7), int(lon0 * 1e7), 0, 80, 120, 0, 0, 12, h_acc=1500, v_acc=3000))
             gps_sent += 1
-            if not sent_bad and gps_sent == 3:
+            if bad_input and not sent_bad and gps_sent == 3:
                 sent_bad = True
                 sock.sendto(b"\xfd\x09garbage\xfe\x01not a frame" * 3, peer)
                 # Another system's GPS, a GPS 50 km off, one from the future.

@@ -149,7 +149,12 @@ fn a_native_dive_through_subnav_mavlink_into_a_pymavlink_autopilot() {
             assert!((got[k] - expect[k]).abs() < tol, "axis {k} at {t:.1} s: {} vs {} (tol {tol:.2})", got[k], expect[k]);
         }
         let yaw_err = wrap_pi(f(m, "yaw") - tr.yaw_rad).abs();
-        assert!(yaw_err < 3.0 * c[20].sqrt() + 1e-3, "yaw off by {:.3} deg at {t:.1} s (sigma {:.3})", yaw_err.to_degrees(), c[20].sqrt().to_degrees());
+        assert!(
+            yaw_err < 3.0 * c[20].sqrt() + 1e-3,
+            "yaw off by {:.3} deg at {t:.1} s (sigma {:.3})",
+            yaw_err.to_degrees(),
+            c[20].sqrt().to_degrees()
+        );
         checked += 1;
     }
     assert!(checked > 100, "{checked} poses after the re-acquisition");
@@ -166,7 +171,12 @@ fn a_native_dive_through_subnav_mavlink_into_a_pymavlink_autopilot() {
         assert!(c[0].sqrt() <= 0.02 + 1e-6 && c[4].sqrt() <= 0.02 + 1e-6, "a velocity sent with sigma over the bound at {t:.1} s");
         let v = [f(m, "x"), f(m, "y"), f(m, "z")];
         for k in 0..3 {
-            assert!((v[k] - tr.vel_ned_mps[k]).abs() < 3.0 * c[4 * k].sqrt() + 0.03, "vel {k} at {t:.1} s: {} vs {}", v[k], tr.vel_ned_mps[k]);
+            assert!(
+                (v[k] - tr.vel_ned_mps[k]).abs() < 3.0 * c[4 * k].sqrt() + 0.03,
+                "vel {k} at {t:.1} s: {} vs {}",
+                v[k],
+                tr.vel_ned_mps[k]
+            );
         }
         if tr.vel_ned_mps.norm() > 0.3 {
             assert!(v.iter().map(|x| x * x).sum::<f64>().sqrt() > 0.1, "a zero velocity while moving at {t:.1} s");

@@ -16,8 +16,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use mavlink::{MavHeader, Message as _};
 use mavlink::dialects::ardupilotmega::{self as mav, MavMessage};
+use mavlink::{MavHeader, Message as _};
 use serde::Serialize;
 use subnav_wire::{Command, Downlink, NavMode, NavSolution, Uplink};
 
@@ -155,7 +155,8 @@ pub struct BridgeSummary {
 impl BridgeSummary {
     /// A few lines for the end of a run.
     pub fn lines(&self) -> Vec<String> {
-        let sent: Vec<String> = self.sent.iter().map(|(k, v)| format!("{k} {v} ({:.1} Hz)", self.rate_hz.get(k).copied().unwrap_or(0.0))).collect();
+        let sent: Vec<String> =
+            self.sent.iter().map(|(k, v)| format!("{k} {v} ({:.1} Hz)", self.rate_hz.get(k).copied().unwrap_or(0.0))).collect();
         let mut out = vec![
             format!("mavlink: {} for {:.1} s; sent {}", self.endpoint, self.duration_s, sent.join(", ")),
             format!(
@@ -310,7 +311,8 @@ impl Bridge {
         let shared =
             Arc::new(Shared { link, epoch: Instant::now(), seq: AtomicU8::new(0), state: Mutex::new(state), stop: AtomicBool::new(false) });
         let sh = shared.clone();
-        let rx = std::thread::Builder::new().name("mavlink-rx".into()).spawn(move || receive(&sh)).context("starting the MAVLink receiver")?;
+        let rx =
+            std::thread::Builder::new().name("mavlink-rx".into()).spawn(move || receive(&sh)).context("starting the MAVLink receiver")?;
         Ok(Bridge { shared, rx: Mutex::new(Some(rx)) })
     }
 
@@ -693,7 +695,11 @@ fn gps_fix(sh: &Shared, st: &mut State, now_us: i64, t_ap_us: i64, fix_ok: bool,
     let s2 = (sigma_m * sigma_m) as f32;
     // The GPS measures the antenna's horizontal position; the depth is the head's own (a wide
     // variance: the fix says nothing about it).
-    let command = Command::PositionFix { t_us: head_t_us, pos_ned_m: [ned[0] as f32, ned[1] as f32, n.pos_ned_m[2]], cov_ned_m2: [s2, 0.0, 0.0, s2, 0.0, 100.0] };
+    let command = Command::PositionFix {
+        t_us: head_t_us,
+        pos_ned_m: [ned[0] as f32, ned[1] as f32, n.pos_ned_m[2]],
+        cov_ned_m2: [s2, 0.0, 0.0, s2, 0.0, 100.0],
+    };
     let seq = st.next_seq;
     st.next_seq = if seq >= FIX_SEQ_LAST { FIX_SEQ_FIRST } else { seq + 1 };
     st.pending_seqs.push(seq);

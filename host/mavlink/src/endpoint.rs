@@ -71,7 +71,10 @@ pub enum Transport {
 }
 
 fn resolve(a: &str) -> Result<SocketAddr> {
-    a.to_socket_addrs().with_context(|| format!("{a} is not an address (HOST:PORT)"))?.next().with_context(|| format!("{a} resolves to no address"))
+    a.to_socket_addrs()
+        .with_context(|| format!("{a} is not an address (HOST:PORT)"))?
+        .next()
+        .with_context(|| format!("{a} resolves to no address"))
 }
 
 impl Transport {

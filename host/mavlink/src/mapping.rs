@@ -223,10 +223,18 @@ pub fn outgoing(
     let [roll, pitch, yaw] = euler_rpy_rad(n.att_nb_wxyz);
     let [x, y, z] = pos_out_ned_m;
     let covariance = pose_covariance(n);
-    let vision_position =
-        mav::VISION_POSITION_ESTIMATE_DATA { usec: t_remote_us, x, y, z, roll, pitch, yaw, covariance, reset_counter };
-    let global_vision_position = global
-        .then_some(mav::GLOBAL_VISION_POSITION_ESTIMATE_DATA { usec: t_remote_us, x, y, z, roll, pitch, yaw, covariance, reset_counter });
+    let vision_position = mav::VISION_POSITION_ESTIMATE_DATA { usec: t_remote_us, x, y, z, roll, pitch, yaw, covariance, reset_counter };
+    let global_vision_position = global.then_some(mav::GLOBAL_VISION_POSITION_ESTIMATE_DATA {
+        usec: t_remote_us,
+        x,
+        y,
+        z,
+        roll,
+        pitch,
+        yaw,
+        covariance,
+        reset_counter,
+    });
     let usable = velocity == Velocity::Usable;
     let [vn, ve, vd] = n.vel_ned_mps;
     let vision_speed = usable.then_some(mav::VISION_SPEED_ESTIMATE_DATA {

@@ -78,7 +78,12 @@ pub struct MavlinkArgs {
 }
 
 /// Start the bridge if an endpoint was given.
-pub fn start(endpoint: Option<&Endpoint>, o: &BridgeOpts, scenario_origin: Option<Geodetic>, clock: HeadClock) -> Result<Option<Arc<Bridge>>> {
+pub fn start(
+    endpoint: Option<&Endpoint>,
+    o: &BridgeOpts,
+    scenario_origin: Option<Geodetic>,
+    clock: HeadClock,
+) -> Result<Option<Arc<Bridge>>> {
     let Some(e) = endpoint else { return Ok(None) };
     let mut cfg = BridgeConfig::new(e.clone());
     cfg.vehicle_system_id = o.mavlink_system_id;
@@ -172,7 +177,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     if let Some(rest) = args.from.strip_prefix("native") {
         let scenario = match rest {
             "" => None,
-            r => Some(PathBuf::from(r.strip_prefix(':').with_context(|| format!("--from {}: expected native or native:SCENARIO.json", args.from))?)),
+            r => Some(PathBuf::from(
+                r.strip_prefix(':').with_context(|| format!("--from {}: expected native or native:SCENARIO.json", args.from))?,
+            )),
         };
         let run_args = super::run::Args {
             scenario,
