@@ -275,7 +275,7 @@ pub fn companion_now_us() -> i64 {
     let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
     // SAFETY: clock_gettime writes the timespec it is given; CLOCK_MONOTONIC always exists on Linux.
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    (ts.tv_sec as i64 * 1_000_000 + ts.tv_nsec as i64 / 1000).max(1)
+    (ts.tv_sec * 1_000_000 + ts.tv_nsec / 1000).max(1)
 }
 
 /// A running bridge.
@@ -341,12 +341,10 @@ impl Bridge {
             st.head_clock.observe(t, now);
         }
         match m {
-            Uplink::Boot(_) => {
-                if st.seen_nav {
-                    st.summary.head_reboots += 1;
-                    st.bump_reset("head reboot");
-                    st.last_resets = None;
-                }
+            Uplink::Boot(_) if st.seen_nav => {
+                st.summary.head_reboots += 1;
+                st.bump_reset("head reboot");
+                st.last_resets = None;
             }
             Uplink::Health(h) => {
                 let now_resets = (h.position_resets, h.heading_resets, h.aid.dvl.resets);
@@ -574,12 +572,10 @@ fn inbound(sh: &Shared, h: &MavHeader, m: &MavMessage) {
         return;
     }
     match m {
-        MavMessage::HEARTBEAT(hb) => {
-            if hb.autopilot != mav::MavAutopilot::MAV_AUTOPILOT_INVALID {
-                st.summary.autopilot_heartbeats += 1;
-                st.last_heartbeat_rx = Some(Instant::now());
-                st.summary.link_alive = true;
-            }
+        MavMessage::HEARTBEAT(hb) if hb.autopilot != mav::MavAutopilot::MAV_AUTOPILOT_INVALID => {
+            st.summary.autopilot_heartbeats += 1;
+            st.last_heartbeat_rx = Some(Instant::now());
+            st.summary.link_alive = true;
         }
         MavMessage::TIMESYNC(t) => {
             let for_us = t.target_component == 0 || t.target_component == st.cfg.component_id;

@@ -29,6 +29,7 @@ pub struct Scanner {
     pub stats: ScanStats,
 }
 
+#[allow(clippy::large_enum_variant)] // a return value, moved once
 enum Step {
     Frame(MavHeader, MavMessage),
     /// Drop this many bytes and go on.
@@ -197,7 +198,7 @@ mod tests {
             x ^= x << 5;
             let b = (x >> 7) as u8;
             // Plenty of start bytes.
-            s.push(&[if x % 7 == 0 { 0xFD } else { b }]);
+            s.push(&[if x.is_multiple_of(7) { 0xFD } else { b }]);
             while s.next_frame().is_some() {}
         }
         assert!(s.stats.skipped_bytes > 0);

@@ -131,7 +131,7 @@ fn bad_input_is_counted_never_fused_and_the_bridge_keeps_serving() {
                         x ^= x << 13;
                         x ^= x >> 17;
                         x ^= x << 5;
-                        if x % 5 == 0 { 0xFD } else { x as u8 }
+                        if x.is_multiple_of(5) { 0xFD } else { x as u8 }
                     })
                     .collect();
                 peer.send_to(&d, to).unwrap();
