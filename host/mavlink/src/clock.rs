@@ -16,20 +16,26 @@ use std::collections::VecDeque;
 pub enum HeadClock {
     /// Head time `t_us` happens at companion time `start_us + t_us / speed`.
     Known { start_us: i64, speed: f64 },
-    /// Estimated from arrivals: offset (companion - head) of the fastest arrival in the current
-    /// and the previous window.
-    Estimated { window_us: i64, current: Option<(i64, i64)>, previous: Option<i64>, last_head_us: Option<u64>, reboots: u32 },
+    /// Estimated from arrivals: offset (companion - head / rate) of the fastest arrival in the
+    /// current and the previous window. `rate`: head seconds per companion second (1 on a live
+    /// link; a recording replayed at 10x: 10).
+    Estimated { window_us: i64, rate: f64, current: Option<(i64, i64)>, previous: Option<i64>, last_head_us: Option<u64>, reboots: u32 },
 }
 
 impl HeadClock {
     /// An estimating clock with windows of `window_s`.
     pub fn estimated(window_s: f64) -> Self {
-        HeadClock::Estimated { window_us: (window_s * 1e6) as i64, current: None, previous: None, last_head_us: None, reboots: 0 }
+        Self::estimated_at(window_s, 1.0)
+    }
+
+    /// As [`Self::estimated`] for a head whose clock runs `rate` times ours (a replay).
+    pub fn estimated_at(window_s: f64, rate: f64) -> Self {
+        HeadClock::Estimated { window_us: (window_s * 1e6) as i64, rate, current: None, previous: None, last_head_us: None, reboots: 0 }
     }
 
     /// A message with head time `head_us` arrived at companion time `rx_us`.
     pub fn observe(&mut self, head_us: u64, rx_us: i64) {
-        let HeadClock::Estimated { window_us, current, previous, last_head_us, reboots } = self else { return };
+        let HeadClock::Estimated { window_us, rate, current, previous, last_head_us, reboots } = self else { return };
         // The head rebooted (its clock went back by more than a second): start again.
         if last_head_us.is_some_and(|l| head_us.saturating_add(1_000_000) < l) {
             *current = None;
@@ -37,7 +43,7 @@ impl HeadClock {
             *reboots += 1;
         }
         *last_head_us = Some(head_us);
-        let off = rx_us - head_us as i64;
+        let off = rx_us - (head_us as f64 / *rate) as i64;
         match current {
             Some((start, min)) if rx_us - *start < *window_us => *min = (*min).min(off),
             Some((_, min)) => {
@@ -52,13 +58,13 @@ impl HeadClock {
     pub fn to_companion_us(&self, head_us: u64) -> Option<i64> {
         match self {
             HeadClock::Known { start_us, speed } => Some(*start_us + (head_us as f64 / speed) as i64),
-            HeadClock::Estimated { current, previous, .. } => {
+            HeadClock::Estimated { current, previous, rate, .. } => {
                 let cur = current.map(|(_, m)| m);
                 let off = match (cur, *previous) {
                     (Some(a), Some(b)) => a.min(b),
                     (a, b) => a.or(b)?,
                 };
-                Some(head_us as i64 + off)
+                Some((head_us as f64 / rate) as i64 + off)
             }
         }
     }
@@ -68,7 +74,7 @@ impl HeadClock {
         let off0 = self.to_companion_us(0)?;
         let head = match self {
             HeadClock::Known { speed, .. } => ((t_us - off0) as f64 * speed) as i64,
-            HeadClock::Estimated { .. } => t_us - off0,
+            HeadClock::Estimated { rate, .. } => ((t_us - off0) as f64 * rate) as i64,
         };
         u64::try_from(head).ok()
     }
@@ -249,6 +255,12 @@ mod tests {
         c.observe(5_000_000, 7_010_000);
         c.observe(0, 50_000_000);
         assert_eq!(c.to_companion_us(0), Some(50_000_000));
+        // A replay at 10x: head time runs ten times ours.
+        let mut r = HeadClock::estimated_at(10.0, 10.0);
+        r.observe(1_000_000, 500_000);
+        r.observe(2_000_000, 600_000);
+        assert_eq!(r.to_companion_us(3_000_000), Some(700_000));
+        assert_eq!(r.to_head_us(700_000), Some(3_000_000));
         let known = HeadClock::Known { start_us: 1_000, speed: 2.0 };
         assert_eq!(known.to_companion_us(2_000_000), Some(1_001_000));
         assert_eq!(known.to_head_us(1_001_000), Some(2_000_000));

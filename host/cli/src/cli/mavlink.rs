@@ -224,7 +224,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 fn replay(path: PathBuf, args: &Args) -> Result<ExitCode> {
     let (session, _) = super::export::load_session(&path, None)?;
     let events = subnav_link::export::events(&session);
-    let bridge = start(Some(&args.to), &args.bridge, None, HeadClock::estimated(10.0))?.context("bridge")?;
+    // The recording's arrivals, replayed at --speed: the head's clock runs --speed times ours.
+    let bridge = start(Some(&args.to), &args.bridge, None, HeadClock::estimated_at(10.0, args.speed))?.context("bridge")?;
     bridge.set_gps_input(GpsInput::Off);
     let Some(&(t0, _)) = events.first() else { bail!("{}: no telemetry", path.display()) };
     let started = Instant::now();
