@@ -42,6 +42,8 @@ enum Command {
     Sim(cli::sim::Args),
     /// Run a dive scenario with the firmware in the loop (QEMU or native) and print error statistics.
     Run(cli::run::Args),
+    /// Bridge a head (simulated, recorded or live) to an autopilot over MAVLink 2: its solution out, GPS back.
+    Mavlink(cli::mavlink::Args),
     /// Calibrate a simulated head (polarization units, IMU) and write the calibrations to its store; compare mis-built heads.
     Calibrate(cli::calibrate::Args),
     /// Run the firmware's estimator on a recording's raw samples and commands and compare with the Nav solutions it sent
@@ -86,6 +88,7 @@ fn main() -> std::process::ExitCode {
         Command::Replay(a) => cli::replay::run(a, args.format),
         Command::Sim(a) => cli::sim::run(a, args.format),
         Command::Run(a) => cli::run::run(a, args.format),
+        Command::Mavlink(a) => cli::mavlink::run(a, args.format),
         Command::Calibrate(a) => cli::calibrate::run(a, args.format),
         Command::Lmnn(a) => cli::lmnn::run(a, args.format),
         Command::Map(a) => cli::map::run(a, args.format),

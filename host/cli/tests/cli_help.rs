@@ -34,6 +34,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("export", "Export a recording"),
     ("sim", "simulated dive scenario"),
     ("run", "firmware in the loop"),
+    ("mavlink", "autopilot over MAVLink"),
     ("report", "Mission report"),
     ("report recording", "Report on a recording"),
     ("report simulate", "Simulate a dive"),

@@ -7,6 +7,9 @@ summary line when the server closes the connection.
   python foxglove_client.py read URL TIMEOUT_S   # read everything until the server closes
   python foxglove_client.py stall URL TIMEOUT_S  # subscribe to what is advertised in the first
                                                  # second, then never read again (TIMEOUT_S)
+  ... [SUBPROTOCOL]                              # offer only this subprotocol (default
+                                                 # foxglove.sdk.v1; foxglove.websocket.v1 as
+                                                 # ws-protocol clients and Lichtblick do)
 """
 
 import json
@@ -26,7 +29,7 @@ SUBPROTOCOL = "foxglove.sdk.v1"
 VALIDATE_PER_TOPIC = 200
 
 
-def open_ws(url, deadline, rcvbuf=None):
+def open_ws(url, deadline, rcvbuf=None, subprotocol=SUBPROTOCOL):
     u = urlparse(url)
     last = None
     while time.time() < deadline:
@@ -35,7 +38,7 @@ def open_ws(url, deadline, rcvbuf=None):
             if rcvbuf:
                 s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
             s.connect((u.hostname, u.port))
-            return connect(url, sock=s, subprotocols=[SUBPROTOCOL], max_size=None, open_timeout=10)
+            return connect(url, sock=s, subprotocols=[subprotocol], max_size=None, open_timeout=10)
         except OSError as e:
             last = e
             s.close()
@@ -45,8 +48,9 @@ def open_ws(url, deadline, rcvbuf=None):
 
 def main():
     mode, url, timeout_s = sys.argv[1], sys.argv[2], float(sys.argv[3])
+    subprotocol = sys.argv[4] if len(sys.argv) > 4 else SUBPROTOCOL
     deadline = time.time() + timeout_s
-    ws = open_ws(url, deadline, rcvbuf=4096 if mode == "stall" else None)
+    ws = open_ws(url, deadline, rcvbuf=4096 if mode == "stall" else None, subprotocol=subprotocol)
     channels = {}  # channel id -> advertisement (+ validator)
     subs = {}  # subscription id -> channel id
     counts = {}

@@ -26,9 +26,14 @@ fn free_port() -> u16 {
 }
 
 fn client(mode: &str, port: u16, timeout_s: u32) -> std::process::Child {
+    client_offering(mode, port, timeout_s, "foxglove.sdk.v1")
+}
+
+/// A client that offers only `subprotocol`.
+fn client_offering(mode: &str, port: u16, timeout_s: u32, subprotocol: &str) -> std::process::Child {
     Command::new(python())
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/foxglove_client.py"))
-        .args([mode, &format!("ws://127.0.0.1:{port}"), &timeout_s.to_string()])
+        .args([mode, &format!("ws://127.0.0.1:{port}"), &timeout_s.to_string(), subprotocol])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -60,7 +65,11 @@ fn a_native_dive_is_served_on_every_topic_with_valid_messages_and_the_same_recor
     let dir = tempfile::tempdir().unwrap();
     let (live_rec, plain_rec) = (dir.path().join("live.snrec"), dir.path().join("plain.snrec"));
     let port = free_port();
-    let viewer = client("read", port, 120);
+    // The Foxglove app's subprotocol and the classic one (ws-protocol clients, Lichtblick).
+    let viewers = [
+        ("foxglove.sdk.v1", client("read", port, 120)),
+        ("foxglove.websocket.v1", client_offering("read", port, 120, "foxglove.websocket.v1")),
+    ];
     let out = subnav()
         .args(run_args(&live_rec))
         .args(["--foxglove", &format!("127.0.0.1:{port}"), "--foxglove-wait-s", "60", "--speed", "10"])
@@ -68,11 +77,25 @@ fn a_native_dive_is_served_on_every_topic_with_valid_messages_and_the_same_recor
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("foxglove: 1 clients") && stderr.contains(" 0 dropped"), "{stderr}");
-    let v = viewer.wait_with_output_timeout();
-    let s: serde_json::Value = serde_json::from_str(v.lines().last().unwrap_or("")).unwrap_or_else(|e| panic!("{e}: {v}"));
-    // The foxglove crate names the classic Foxglove WebSocket protocol (ws-protocol v1) so.
-    assert_eq!(s["subprotocol"], "foxglove.sdk.v1");
+    assert!(stderr.contains("foxglove: 2 clients") && stderr.contains(" 0 dropped"), "{stderr}");
+    for (subprotocol, viewer) in viewers {
+        let v = viewer.wait_with_output_timeout();
+        let s: serde_json::Value = serde_json::from_str(v.lines().last().unwrap_or("")).unwrap_or_else(|e| panic!("{e}: {v}"));
+        check_viewer(&s, subprotocol);
+    }
+    // The same run without the server: the same recording, chunk for chunk.
+    let out = subnav().args(run_args(&plain_rec)).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (live, plain) = (recording(&live_rec), recording(&plain_rec));
+    assert!(live.0.len() > 1000, "{} chunks", live.0.len());
+    assert_eq!(live.1, plain.1);
+    assert!(live.0 == plain.0, "the recordings differ ({} vs {} chunks)", live.0.len(), plain.0.len());
+}
+
+/// A viewer's summary: every topic advertised and validated against its channel's schema.
+fn check_viewer(s: &serde_json::Value, subprotocol: &str) {
+    // The subprotocol the client offered is the one the server answered with.
+    assert_eq!(s["subprotocol"], subprotocol, "{s}");
     assert!(s["closed_by_server"].as_bool().unwrap(), "{s}");
     assert_eq!(s["invalid"].as_array().unwrap().len(), 0, "{s}");
     assert_eq!(s["errors"].as_array().unwrap().len(), 0, "{s}");
@@ -104,14 +127,6 @@ fn a_native_dive_is_served_on_every_topic_with_valid_messages_and_the_same_recor
     assert!(s["counts"]["/subnav/nav"].as_u64().unwrap() > 300, "{s}");
     assert_eq!(s["schemas"]["/subnav/pose"], "foxglove.PoseInFrame");
     assert_eq!(s["schemas"]["/subnav/map"], "foxglove.SceneUpdate");
-
-    // The same run without the server: the same recording, chunk for chunk.
-    let out = subnav().args(run_args(&plain_rec)).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let (live, plain) = (recording(&live_rec), recording(&plain_rec));
-    assert!(live.0.len() > 1000, "{} chunks", live.0.len());
-    assert_eq!(live.1, plain.1);
-    assert!(live.0 == plain.0, "the recordings differ ({} vs {} chunks)", live.0.len(), plain.0.len());
 }
 
 trait WaitOutput {

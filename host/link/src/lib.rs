@@ -10,5 +10,6 @@ pub mod qemu;
 pub mod record;
 pub mod source;
 pub mod uplink;
+pub mod ws_subprotocol;
 
 pub use uplink::{LinkEvent, LinkStats, UplinkDecoder};

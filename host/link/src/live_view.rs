@@ -1,5 +1,6 @@
-//! Watching a dive live in Foxglove: a Foxglove WebSocket server (the official `foxglove` crate,
-//! protocol `foxglove.websocket.v1`) that publishes a dive's events on the topics of
+//! Watching a dive live in Foxglove: a Foxglove WebSocket server (the official `foxglove` crate;
+//! clients offering `foxglove.websocket.v1` (ws-protocol, Lichtblick) or the crate's
+//! `foxglove.sdk.v1`/`v1.1` (the Foxglove app) both connect, through [`crate::ws_subprotocol`]) that publishes a dive's events on the topics of
 //! [`crate::export::topics`], the same topics and schemas as the MCAP export.
 //!
 //! The server never slows the link. The decoding or simulating thread hands each event to
@@ -145,6 +146,8 @@ pub struct LiveView {
     shared: Arc<Shared>,
     publisher: Option<JoinHandle<(u64, u64, Vec<String>)>>,
     server: Option<WebSocketServerHandle>,
+    /// The listening side: `foxglove.websocket.v1` and the SDK's names ([`crate::ws_subprotocol`]).
+    proxy: Option<crate::ws_subprotocol::Proxy>,
 }
 
 /// Parse `--foxglove`'s address (`HOST:PORT`).
@@ -165,12 +168,16 @@ impl LiveView {
         let server = WebSocketServer::new()
             .context(&ctx)
             .name(format!("subnav {}", env!("CARGO_PKG_VERSION")))
-            .bind(addr.ip().to_string(), addr.port())
+            // The server itself listens on the loopback; clients come through the subprotocol
+            // layer on `addr`.
+            .bind("127.0.0.1", 0)
             .listener(Arc::new(Listener(shared.clone())))
             .message_backlog_size(CLIENT_BACKLOG)
             .start_blocking()
             .map_err(|e| anyhow!("starting the Foxglove server on {addr}: {e}"))?;
-        let bound = SocketAddr::new(addr.ip(), server.port());
+        let inner = SocketAddr::new(std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST), server.port());
+        let proxy = crate::ws_subprotocol::Proxy::start(addr, inner).with_context(|| format!("starting the Foxglove server on {addr}"))?;
+        let bound = proxy.addr();
         let (tx, rx) = sync_channel(queue.max(1));
         let sh = shared.clone();
         let publisher = std::thread::Builder::new()
@@ -185,6 +192,7 @@ impl LiveView {
             shared,
             publisher: Some(publisher),
             server: Some(server),
+            proxy: Some(proxy),
         })
     }
 
@@ -251,6 +259,9 @@ impl LiveView {
             if let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_time().build() {
                 let _ = rt.block_on(async { tokio::time::timeout(SHUTDOWN_BOUND, shutdown.wait()).await });
             }
+        }
+        if let Some(mut p) = self.proxy.take() {
+            p.stop();
         }
         LiveSummary {
             address: self.addr.to_string(),

@@ -781,6 +781,18 @@ impl SimHead {
         map: Option<crate::map_loop::MapLoop>,
         commands: Vec<(u64, Vec<u8>)>,
     ) -> Self {
+        Self::build_live(sc, tap, map, commands, None)
+    }
+
+    /// As [`SimHead::build_with_commands`], with `live` polled for downlink frames during the run
+    /// (e.g. fixes from an autopilot's GPS, `subnav mavlink`), delivered over the modem link at once.
+    pub fn build_live(
+        sc: &Scenario,
+        tap: Option<DeliveryTap>,
+        map: Option<crate::map_loop::MapLoop>,
+        commands: Vec<(u64, Vec<u8>)>,
+        live: Option<crate::chips::modem::LiveSource>,
+    ) -> Self {
         let traj = Arc::new(sc.trajectory());
         let mut chips = ChipSet::new();
 
@@ -873,6 +885,9 @@ impl SimHead {
             chips.attach_gpio(0, camera);
             modem = modem
                 .with_live_source(Box::new(move |t_us| if faults.host_down(t_us as f64 * 1e-6) { Vec::new() } else { map.poll(t_us) }));
+        }
+        if let Some(live) = live {
+            modem = modem.with_live_source(live);
         }
         chips.attach_uart(1, modem);
         SimHead { chips, boot_world_us: 0, last_world_us: 0, last_head_us: 0, head_resets: 0 }

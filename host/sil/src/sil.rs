@@ -147,6 +147,19 @@ pub fn run_native_observed(
     keep_all: bool,
     observer: Option<NativeObserver<'_>>,
 ) -> NativeRun {
+    run_native_live(sc, progress, keep_all, observer, None)
+}
+
+/// As [`run_native_observed`], with `downlink` polled (with the head's time) for commands to
+/// deliver over the modem link as the run goes (e.g. an autopilot's GPS turned into position
+/// fixes by `subnav mavlink`): the head then depends on them, unlike with a mere observer.
+pub fn run_native_live(
+    sc: &Scenario,
+    progress: Option<&dyn Fn(&LiveStatus)>,
+    keep_all: bool,
+    observer: Option<NativeObserver<'_>>,
+    downlink: Option<crate::chips::modem::LiveSource>,
+) -> NativeRun {
     let map = sc.map_loop();
     // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
     let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
@@ -154,7 +167,7 @@ pub fn run_native_observed(
         let d = delivered.clone();
         Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
     };
-    let head = SimHead::build(sc, Some(tap), map.clone());
+    let head = SimHead::build_live(sc, Some(tap), map.clone(), Vec::new(), downlink);
     run_native_on(sc, head, map, delivered, progress, keep_all, observer)
 }
 

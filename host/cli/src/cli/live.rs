@@ -18,7 +18,8 @@ pub const LAYOUT: &str = "docs/foxglove/subnav-layout.json";
 
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct FoxgloveArgs {
-    /// Serve the dive live to Foxglove (WebSocket, `foxglove.websocket.v1`) on ADDR (default
+    /// Serve the dive live to Foxglove (WebSocket; subprotocol `foxglove.websocket.v1` or
+    /// `foxglove.sdk.v1`) on ADDR (default
     /// 127.0.0.1:8765); in Foxglove: "Open connection", `ws://ADDR`, and the layout
     /// docs/foxglove/subnav-layout.json. Slow or absent viewers lose messages, never slow the run.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live_view::DEFAULT_ADDR, value_parser = live_view::parse_addr)]

@@ -18,6 +18,7 @@ pub mod ice;
 pub mod live;
 pub mod lmnn;
 pub mod map;
+pub mod mavlink;
 pub mod phasecorr;
 pub mod print;
 pub mod qemu;

@@ -44,6 +44,9 @@ pub struct Args {
     pub seed: u64,
     #[command(flatten)]
     pub live: super::live::FoxgloveArgs,
+    /// The head's solution to an autopilot (the autopilot's GPS is not sent back under QEMU).
+    #[command(flatten)]
+    pub mavlink: super::mavlink::MavlinkArgs,
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
@@ -67,8 +70,17 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
     // With the simulated sensors, the viewer also gets the truth.
     let feed = live.as_ref().filter(|_| !args.no_sensors).map(|l| super::live::SimFeed::new(l, &scenario));
+    let origin = if args.no_sensors { None } else { super::mavlink::scenario_origin(&scenario) };
+    let bridge =
+        super::mavlink::start(args.mavlink.mavlink.as_ref(), &args.mavlink.bridge, origin, subnav_mavlink::HeadClock::estimated(10.0))?;
+    if let Some(b) = &bridge {
+        b.set_gps_input(subnav_mavlink::GpsInput::Off);
+    }
     let outcome = qemu::run_with_bus(&cfg, bus, |event, _| match event {
         QemuEvent::Link(e) => {
+            if let subnav_link::LinkEvent::Message(m) = &e {
+                super::mavlink::on_uplink(bridge.as_ref(), m);
+            }
             match (&e, &feed) {
                 (subnav_link::LinkEvent::Message(m), Some(f)) => f.on_uplink(subnav_link::record::now_unix_us(), m, None),
                 _ => super::live::link_event(live.as_ref(), &e),
@@ -83,6 +95,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     .map(|(o, _)| o);
     drop(feed);
     super::live::finish(live);
+    super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     cfg.raw_tap = None;
     if let Some(r) = recorder {
         r.finish()?;

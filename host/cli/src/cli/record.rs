@@ -53,6 +53,10 @@ pub struct Args {
     pub idle_timeout_s: Option<f64>,
     #[command(flatten)]
     pub live: super::live::FoxgloveArgs,
+    /// The head's solution to an autopilot as it is recorded (the autopilot's GPS is not sent
+    /// back: `record` only reads the link; `subnav mavlink --from tcp:..|serial:..` does).
+    #[command(flatten)]
+    pub mavlink: super::mavlink::MavlinkArgs,
 }
 
 /// Longest `--duration-s` of a live recording, s (a year).
@@ -144,6 +148,11 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
     }
     let mut reader = source.open()?;
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
+    let bridge =
+        super::mavlink::start(args.mavlink.mavlink.as_ref(), &args.mavlink.bridge, None, subnav_mavlink::HeadClock::estimated(10.0))?;
+    if let Some(b) = &bridge {
+        b.set_gps_input(subnav_mavlink::GpsInput::Off);
+    }
     // Under a temporary name until the first data arrives: a source that fails or closes at
     // once leaves an old recording at --out untouched.
     let mut w = Writer::create_atomic(&args.out, &meta)?;
@@ -166,6 +175,9 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
         let was_first = dec.stats().frames_ok == 0;
         dec.feed(bytes, |e| {
             super::live::link_event(live.as_ref(), &e);
+            if let LinkEvent::Message(m) = &e {
+                super::mavlink::on_uplink(bridge.as_ref(), m);
+            }
             status.see(&e)
         });
         status.link = dec.stats();
@@ -178,6 +190,7 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
     });
     bar.finish_and_clear();
     super::live::finish(live);
+    super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     if let Some(e) = write_err {
         return Err(e);
     }

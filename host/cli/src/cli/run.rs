@@ -19,7 +19,7 @@ use super::Format;
 use subnav_link::export::TimeBase;
 use subnav_sil::Scenario;
 use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_csv};
-use subnav_sil::sil::{run_native_observed, run_native_scored};
+use subnav_sil::sil::{run_native_live, run_native_scored};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -59,14 +59,20 @@ pub struct Args {
     pub quiet: bool,
     /// Run the scenario once per seed (`N`, `A..B`, `A..=B`; native only) and print one line
     /// per seed and the mean of each figure.
-    #[arg(long, value_parser = super::args::parse_seeds, requires = "native", conflicts_with_all = ["record", "truth", "foxglove"])]
+    #[arg(long, value_parser = super::args::parse_seeds, requires = "native", conflicts_with_all = ["record", "truth", "foxglove", "mavlink"])]
     pub seeds: Option<super::args::Seeds>,
     #[command(flatten)]
     pub live: super::live::FoxgloveArgs,
+    #[command(flatten)]
+    pub mavlink: super::mavlink::MavlinkArgs,
     /// Native runs: at most this many seconds of dive per second of wall time (e.g. 1 to watch
     /// in real time; default: as fast as it goes). The results are the same at any speed.
     #[arg(long, requires = "native", value_parser = super::args::f64_positive_upto(1e6))]
     pub speed: Option<f64>,
+    /// Native runs at a --speed: the telemetry reaches the host this long after the head wrote
+    /// it, ms (a serial or acoustic link's delay; the bridge stamps the time of validity).
+    #[arg(long, requires = "native", value_parser = super::args::f64_positive_upto(10_000.0))]
+    pub link_delay_ms: Option<f64>,
 }
 
 fn load(args: &Args) -> Result<Scenario> {
@@ -211,24 +217,40 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     };
     let live = super::live::start(&args.live, TimeBase::Host)?;
     let feed = live.as_ref().map(|l| super::live::SimFeed::new(l, &sc));
+    let bridge = super::mavlink::start(
+        args.mavlink.mavlink.as_ref(),
+        &args.mavlink.bridge,
+        super::mavlink::scenario_origin(&sc),
+        subnav_mavlink::HeadClock::estimated(10.0),
+    )?;
+    // An autopilot needs the solution in real time: a bridged native run goes at 1x unless told.
+    let speed = if bridge.is_some() && args.native { Some(args.speed.unwrap_or(1.0)) } else { args.speed };
     let result: DiveResult = if args.native {
         // Host time of a native run: the firmware time plus the scenario's start (as in its recording).
         let t0 = u64::try_from(sc.start_utc_unix_us).unwrap_or(0);
         let started = std::time::Instant::now();
+        if let Some(b) = &bridge {
+            // The simulated head's clock: head time t happens at start + t / speed (the pacing below).
+            b.set_head_clock(subnav_mavlink::HeadClock::Known { start_us: b.now_us(), speed: speed.unwrap_or(1.0) });
+        }
         let observe = |t_us: u64, m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
             if let Some(f) = &feed {
                 f.on_uplink(t0 + t_us, m, map);
             }
-            if let (Some(speed), subnav_wire::Uplink::Nav(_)) = (args.speed, m) {
+            if let (Some(speed), subnav_wire::Uplink::Nav(_)) = (speed, m) {
                 // Pace on the navigation solutions: dive time ahead of wall time x speed waits.
-                let due = Duration::from_secs_f64(t_us as f64 * 1e-6 / speed);
+                let due = Duration::from_secs_f64(t_us as f64 * 1e-6 / speed + args.link_delay_ms.unwrap_or(0.0) * 1e-3);
                 if let Some(wait) = due.checked_sub(started.elapsed()) {
                     std::thread::sleep(wait);
                 }
             }
+            // After the pacing: the bridge sees the message when the head would send it.
+            super::mavlink::on_uplink(bridge.as_ref(), m);
         };
-        let observer: Option<subnav_sil::sil::NativeObserver> = if feed.is_some() || args.speed.is_some() { Some(&observe) } else { None };
-        let run = run_native_observed(&sc, Some(&progress), record.is_some(), observer);
+        let observer: Option<subnav_sil::sil::NativeObserver> =
+            if feed.is_some() || speed.is_some() || bridge.is_some() { Some(&observe) } else { None };
+        let downlink = bridge.as_ref().map(super::mavlink::downlink_source);
+        let run = run_native_live(&sc, Some(&progress), record.is_some(), observer, downlink);
         let recordings = match &record {
             Some(p) => run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?,
             None => Vec::new(),
@@ -241,13 +263,19 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         if !elf.exists() {
             bail!("{} does not exist: build it with `cargo xtask build` (or use --native)", elf.display());
         }
+        // Under QEMU nothing goes back to the head from the bridge (its modem carries the
+        // scenario's fixes): the autopilot's GPS is not used.
+        if let Some(b) = &bridge {
+            b.set_gps_input(subnav_mavlink::GpsInput::Off);
+        }
         let observe = |m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
             if let Some(f) = &feed {
                 f.on_uplink(subnav_link::record::now_unix_us(), m, map);
             }
+            super::mavlink::on_uplink(bridge.as_ref(), m);
         };
         let observer: Option<&dyn Fn(&subnav_wire::Uplink, Option<&subnav_sil::map_loop::MapLoop>)> =
-            if feed.is_some() { Some(&observe) } else { None };
+            if feed.is_some() || bridge.is_some() { Some(&observe) } else { None };
         let opts = DiveOptions {
             record: record.as_deref(),
             timeout: Some(Duration::from_secs(args.timeout_s)),
@@ -259,6 +287,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     pb.finish_and_clear();
     drop(feed);
     super::live::finish(live);
+    super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
         std::fs::write(p, truth_csv(&sc, 0.1)).with_context(|| format!("writing the truth {}", p.display()))?;

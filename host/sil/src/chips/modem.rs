@@ -24,7 +24,7 @@ pub struct ModemModel {
     scheduled: VecDeque<(u64, Vec<u8>)>,
     ready: VecDeque<u8>,
     tap: Option<DeliveryTap>,
-    live: Option<LiveSource>,
+    live: Vec<LiveSource>,
     /// Frames delivered so far.
     pub delivered: u64,
 }
@@ -33,12 +33,12 @@ impl ModemModel {
     /// `frames`: (arrival time µs, encoded downlink frame), any order.
     pub fn new(mut frames: Vec<(u64, Vec<u8>)>, tap: Option<DeliveryTap>) -> Self {
         frames.sort_by_key(|(t, _)| *t);
-        Self { scheduled: frames.into(), ready: VecDeque::new(), tap, live: None, delivered: 0 }
+        Self { scheduled: frames.into(), ready: VecDeque::new(), tap, live: Vec::new(), delivered: 0 }
     }
 
-    /// Also deliver the frames `live` produces during the run.
+    /// Also deliver the frames `live` produces during the run (several sources: each polled in turn).
     pub fn with_live_source(mut self, live: LiveSource) -> Self {
-        self.live = Some(live);
+        self.live.push(live);
         self
     }
 
@@ -51,7 +51,7 @@ impl ModemModel {
             self.ready.extend(frame);
             self.delivered += 1;
         }
-        if let Some(live) = self.live.as_mut() {
+        for live in self.live.iter_mut() {
             for frame in live(t_us) {
                 if let Some(tap) = self.tap.as_mut() {
                     tap(t_us, &frame);
