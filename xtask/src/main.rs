@@ -71,6 +71,7 @@ fn real_main() -> Result<()> {
             setup::ensure_system_packages()?;
             firmware::Toolchain::detect()?;
             setup::peer_venv()?;
+            setup::peer_node()?;
             Ok(())
         }
         "build" => {
@@ -160,6 +161,7 @@ fn test(rest: &[String]) -> Result<()> {
     size::print(&reports);
     size::check(&reports)?;
     let python = setup::peer_venv()?;
+    let node_modules = setup::peer_node()?;
 
     let qemu_elf = elfs.iter().find(|(b, _)| *b == firmware::Board::Qemu).map(|(_, e)| e.clone()).context("no QEMU ELF")?;
     let passthrough: Vec<&String> = rest.iter().skip_while(|a| *a != "--").collect();
@@ -169,7 +171,7 @@ fn test(rest: &[String]) -> Result<()> {
         // doctests, which follow.
         let mut c = host_cargo();
         c.args(["nextest", "run", "--workspace", "--no-fail-fast", "--final-status-level", "slow"]);
-        c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python);
+        c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python).env("SUBNAV_PEER_NODE_MODULES", &node_modules);
         run(&mut c)?;
         let mut c = host_cargo();
         c.args(["test", "--workspace", "--doc"]);
@@ -179,7 +181,7 @@ fn test(rest: &[String]) -> Result<()> {
         let mut c = host_cargo();
         c.args(["test", "--workspace"]);
         c.args(passthrough);
-        c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python);
+        c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python).env("SUBNAV_PEER_NODE_MODULES", &node_modules);
         run(&mut c)?;
     }
     // `subnav flash` / `attach` (probe-rs) cannot be exercised without a board; build them so

@@ -62,3 +62,28 @@ pub fn peer_venv() -> Result<PathBuf> {
     std::fs::write(&stamp, wanted)?;
     Ok(python)
 }
+
+/// Install the npm peers of `tests/peers/node` (package.json + package-lock.json, pinned) into
+/// `target/peers-node` with `npm ci`; returns its `node_modules` (for `NODE_PATH`). Redone only
+/// when the lock file changes.
+pub fn peer_node() -> Result<PathBuf> {
+    let src = root().join("tests").join("peers").join("node");
+    let dir = root().join("target").join("peers-node");
+    let modules = dir.join("node_modules");
+    let lock = std::fs::read_to_string(src.join("package-lock.json")).context("reading tests/peers/node/package-lock.json")?;
+    let stamp = dir.join("subnav-package-lock.json");
+    if modules.exists() && std::fs::read_to_string(&stamp).ok().as_deref() == Some(lock.as_str()) {
+        return Ok(modules);
+    }
+    if !which("npm") || !which("node") {
+        // The Foxglove ws-protocol peer needs them.
+        apt_install(&["nodejs", "npm"])?;
+    }
+    std::fs::create_dir_all(&dir)?;
+    for f in ["package.json", "package-lock.json"] {
+        std::fs::copy(src.join(f), dir.join(f)).with_context(|| format!("copying tests/peers/node/{f}"))?;
+    }
+    run(Command::new("npm").current_dir(&dir).args(["ci", "--no-audit", "--no-fund", "--loglevel=error"]))?;
+    std::fs::write(&stamp, lock)?;
+    Ok(modules)
+}

@@ -1,7 +1,9 @@
-//! `--foxglove`: a native dive served live to a Foxglove WebSocket protocol client
-//! (`foxglove_client.py`, the `websockets` and `jsonschema` packages of the peer venv,
-//! `SUBNAV_PEER_PYTHON`) that subscribes to every advertised channel and validates every message
-//! against its channel's JSON Schema; the recording of the same run is compared chunk for chunk
+//! `--foxglove`: a native dive served live to Foxglove WebSocket protocol clients that subscribe
+//! to every advertised channel and validate every message against its channel's JSON Schema:
+//! `foxglove_client.py` (the `websockets` and `jsonschema` packages of the peer venv,
+//! `SUBNAV_PEER_PYTHON`) offering each subprotocol, and the official npm client
+//! `@foxglove/ws-protocol` 0.8.0 (`foxglove_ws_client.cjs`, node with the `target/peers-node`
+//! modules of `cargo xtask setup`, `SUBNAV_PEER_NODE_MODULES`); the recording of the same run is compared chunk for chunk
 //! with one made without the server. A client that never reads must not delay the run or cost
 //! the recording anything.
 
@@ -40,6 +42,23 @@ fn client_offering(mode: &str, port: u16, timeout_s: u32, subprotocol: &str) -> 
         .unwrap()
 }
 
+/// The official ws-protocol client (npm `@foxglove/ws-protocol`), which offers
+/// `foxglove.websocket.v1`.
+fn npm_client(port: u16, timeout_s: u32) -> std::process::Child {
+    let modules = match std::env::var_os("SUBNAV_PEER_NODE_MODULES") {
+        Some(p) => PathBuf::from(p),
+        None => panic!("SUBNAV_PEER_NODE_MODULES is not set: run the tests with `cargo xtask test` (it installs the npm peers)"),
+    };
+    Command::new("node")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/foxglove_ws_client.cjs"))
+        .args([&format!("ws://127.0.0.1:{port}"), &timeout_s.to_string()])
+        .env("NODE_PATH", modules)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 /// The default job (camera and map in the loop), shortened: `subnav run --native`.
 fn run_args(rec: &Path) -> Vec<String> {
     ["run", "--native", "--quiet", "--duration-s", "60", "--record"]
@@ -69,6 +88,7 @@ fn a_native_dive_is_served_on_every_topic_with_valid_messages_and_the_same_recor
     let viewers = [
         ("foxglove.sdk.v1", client("read", port, 120)),
         ("foxglove.websocket.v1", client_offering("read", port, 120, "foxglove.websocket.v1")),
+        ("foxglove.websocket.v1", npm_client(port, 120)),
     ];
     let out = subnav()
         .args(run_args(&live_rec))
@@ -77,7 +97,7 @@ fn a_native_dive_is_served_on_every_topic_with_valid_messages_and_the_same_recor
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("foxglove: 2 clients") && stderr.contains(" 0 dropped"), "{stderr}");
+    assert!(stderr.contains("foxglove: 3 clients") && stderr.contains(" 0 dropped"), "{stderr}");
     for (subprotocol, viewer) in viewers {
         let v = viewer.wait_with_output_timeout();
         let s: serde_json::Value = serde_json::from_str(v.lines().last().unwrap_or("")).unwrap_or_else(|e| panic!("{e}: {v}"));
