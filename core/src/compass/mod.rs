@@ -14,6 +14,8 @@
 //! Frames: body FRD, navigation NED (see [`subnav_wire::messages`]); heading and azimuths are
 //! from north, clockwise.
 
+pub mod departure;
+mod departure_table;
 pub mod sun_vector;
 pub mod unit;
 pub mod water;
@@ -168,6 +170,9 @@ pub struct CompassConfig {
     /// Largest reported heading 1-sigma for a fix (rad); beyond it the field cannot give a
     /// heading (low DoLP, turbid water with a low sun) and the reason is `LowDolp`.
     pub max_sigma_heading_rad: f32,
+    /// With `azimuth_at_known_elevation`: the real field's expected AoP departure from single
+    /// scattering, subtracted from each unit before the azimuth fit ([`departure`]).
+    pub aop_departure: Option<&'static departure::AopDeparture>,
 }
 
 impl Default for CompassConfig {
@@ -188,6 +193,7 @@ impl Default for CompassConfig {
             tilt_sigma_rad: 0.0,
             azimuth_at_known_elevation: false,
             max_sigma_heading_rad: f32::INFINITY,
+            aop_departure: None,
         }
     }
 }
@@ -401,8 +407,17 @@ pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig)
     if cfg.azimuth_at_known_elevation {
         let air_zenith = core::f32::consts::FRAC_PI_2 - fix.ephemeris_elevation_rad;
         let water_el = core::f32::consts::FRAC_PI_2 - water::water_zenith_rad(air_zenith.max(0.0), cfg.n_water);
-        let fit = sun_vector::solve_azimuth(&obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver, water_el, &m.sun.s_body)
-            .map_err(|e| (e, Some(m)))?;
+        let departure = cfg.aop_departure.map(|t| (t, air_zenith.max(0.0)));
+        let fit = sun_vector::solve_azimuth(
+            &obs,
+            &up,
+            cfg.fresnel_correction.then_some(cfg.n_water),
+            &cfg.solver,
+            water_el,
+            &m.sun.s_body,
+            departure,
+        )
+        .map_err(|e| (e, Some(m)))?;
         let (se, ce) = crate::ephemeris::phase::sincos_rad(water_el);
         let sigma_tilt = cfg.tilt_sigma_rad * se / ce.max(1e-3);
         let sigma = libm::sqrtf(fit.sigma_rel_azimuth_rad * fit.sigma_rel_azimuth_rad + sigma_tilt * sigma_tilt);
