@@ -102,6 +102,20 @@ mod tests {
         assert_eq!(t.at(f32::NAN, 1.0, 1.0), 0.0);
     }
 
+    /// `A_sun - A_look`, clockwise seen from above (body FRD level: up is -z): a unit looking
+    /// forward (north) with the sun to the right (east) has +90 deg.
+    #[test]
+    fn relative_azimuth_sign() {
+        use nalgebra::Vector3;
+        let up = Vector3::new(0.0f32, 0.0, -1.0);
+        let look = Vector3::new(0.26f32, 0.0, -0.97).normalize();
+        let sun = Vector3::new(0.0f32, 0.6, -0.8);
+        let phi = super::super::sun_vector::rel_azimuth(&look, &sun, &up);
+        assert!((phi - 90.0 * DEG).abs() < 1e-4, "{phi}");
+        let phi = super::super::sun_vector::rel_azimuth(&sun, &look, &up);
+        assert!((phi + 90.0 * DEG).abs() < 1e-4, "{phi}");
+    }
+
     #[test]
     fn the_heads_table_is_small_and_odd_at_the_solar_plane() {
         for s in &OSOAA_CLEAR.aop_rad {

@@ -299,13 +299,19 @@ pub fn measure_sun(
 ) -> Result<SunMeasurement, NoFix> {
     let up = up_from_accel(accel_body_mps2, cfg)?;
     let obs = observe_units(units, counts, cfg)?;
-    measure_sun_from(&obs, &up, cfg)
+    measure_sun_from(&obs, &up, cfg, None)
 }
 
 /// [`measure_sun`] from the kept units and the vertical.
-fn measure_sun_from(obs: &[UnitObservation], up: &Vector3<f32>, cfg: &CompassConfig) -> Result<SunMeasurement, NoFix> {
+fn measure_sun_from(
+    obs: &[UnitObservation],
+    up: &Vector3<f32>,
+    cfg: &CompassConfig,
+    sun_zenith_air_rad: Option<f32>,
+) -> Result<SunMeasurement, NoFix> {
     let up = *up;
-    let sun = sun_vector::solve(obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver)?;
+    let departure = cfg.aop_departure.zip(sun_zenith_air_rad);
+    let sun = sun_vector::solve_with_departure(obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver, departure)?;
     // Level (heading) frame: x = body x projected on the horizontal, z = down.
     let down = -up;
     let xb = Vector3::new(1.0, 0.0, 0.0);
@@ -396,7 +402,15 @@ pub struct CompassInput<'a> {
 pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
     let up = up_from_accel(input.accel_body_mps2, cfg).map_err(|e| (e, None))?;
     let obs = observe_units(units, input.counts, cfg).map_err(|e| (e, None))?;
-    let m = measure_sun_from(&obs, &up, cfg).map_err(|e| match (e, input.unix_us, input.observer) {
+    // With a departure table and the time and place, the sun's zenith from the ephemeris (the
+    // table is indexed by it); without them the departure is left out of the sun vector.
+    let sun_zenith_air = match (cfg.aop_departure, input.unix_us, input.observer) {
+        (Some(_), Some(t), Some(o)) => ephemeris::sun_position(t, &o, Some(&Atmosphere::default()), input.delta_t_s)
+            .ok()
+            .map(|p| (core::f32::consts::FRAC_PI_2 - p.apparent_elevation_rad()).max(0.0)),
+        _ => None,
+    };
+    let m = measure_sun_from(&obs, &up, cfg, sun_zenith_air).map_err(|e| match (e, input.unix_us, input.observer) {
         (NoFix::SunNearZenith, Some(t), Some(o)) if sun_disc_missing(t, &o, input.delta_t_s, cfg) => (NoFix::NoSunDisc, None),
         _ => (e, None),
     })?;

@@ -222,10 +222,8 @@ pub fn solve_azimuth(
         for (ei, o) in e.iter_mut().zip(obs) {
             let mut delta = n_water.and_then(|nw| fresnel_aop_shift(&o.view_body, &s, up_body, nw)).unwrap_or(0.0);
             if let Some((table, sun_zenith_rad)) = departure {
-                let d = o.view_body;
-                let view_zenith = libm::acosf(d.dot(up_body).clamp(-1.0, 1.0));
-                let look_az = libm::atan2f(d.dot(&right), d.dot(&fwd));
-                delta += table.at(sun_zenith_rad, view_zenith, psi - look_az);
+                let view_zenith = libm::acosf(o.view_body.dot(up_body).clamp(-1.0, 1.0));
+                delta += table.at(sun_zenith_rad, view_zenith, rel_azimuth(&o.view_body, &s, up_body));
             }
             *ei = rotate_back(o, delta);
         }
@@ -273,6 +271,26 @@ pub fn solve_azimuth(
 /// With `n_water`, the e-vectors are corrected for the Fresnel polarization of the refracted
 /// sunbeam (computed from the current sun estimate and the vertical; flat-surface model).
 pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f32>, cfg: &SolverConfig) -> Result<SunVector, NoFix> {
+    solve_with_departure(obs, up_body, n_water, cfg, None)
+}
+
+/// Relative azimuth `A_sun - A_look` (rad, clockwise seen from above) of a look direction and
+/// the sun, both body vectors, `up` toward the sky.
+pub fn rel_azimuth(look: &Vector3<f32>, sun: &Vector3<f32>, up: &Vector3<f32>) -> f32 {
+    let lh = look - up * look.dot(up);
+    let sh = sun - up * sun.dot(up);
+    libm::atan2f(-lh.cross(&sh).dot(up), lh.dot(&sh))
+}
+
+/// [`solve`] with the real field's expected AoP departure (a table and the sun's zenith in air,
+/// rad) subtracted from each unit at the current sun estimate, as [`solve_azimuth`] does.
+pub fn solve_with_departure(
+    obs: &[UnitObservation],
+    up_body: &Vector3<f32>,
+    n_water: Option<f32>,
+    cfg: &SolverConfig,
+    departure: Option<(&super::departure::AopDeparture, f32)>,
+) -> Result<SunVector, NoFix> {
     let n = obs.len();
     if n > super::MAX_UNITS {
         return Err(NoFix::BadInput);
@@ -301,7 +319,11 @@ pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f3
     let mut r = [0.0f32; super::MAX_UNITS];
     let correct = |e: &mut [Vector3<f32>; super::MAX_UNITS], s: &Vector3<f32>| {
         for (ei, o) in e.iter_mut().zip(obs) {
-            let delta = n_water.and_then(|nw| fresnel_aop_shift(&o.view_body, s, up_body, nw)).unwrap_or(0.0);
+            let mut delta = n_water.and_then(|nw| fresnel_aop_shift(&o.view_body, s, up_body, nw)).unwrap_or(0.0);
+            if let Some((table, sun_zenith_rad)) = departure {
+                let view_zenith = libm::acosf(o.view_body.dot(up_body).clamp(-1.0, 1.0));
+                delta += table.at(sun_zenith_rad, view_zenith, rel_azimuth(&o.view_body, s, up_body));
+            }
             *ei = rotate_back(o, delta);
         }
     };
