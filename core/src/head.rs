@@ -96,7 +96,9 @@ pub fn compass_config() -> CompassConfig {
 }
 
 /// The compass settings of issue 35, measured against the OSOAA fields but not (yet) the
-/// head's: the model departure (above) and the azimuth re-fitted at the ephemeris's elevation.
+/// head's: the model departure (above), the azimuth re-fitted at the ephemeris's elevation
+/// with the real field's expected AoP departure subtracted (`compass::departure::OSOAA_CLEAR`,
+/// 208 f32 of flash).
 /// Not the head's default because in the SIL they cost the map in the loop its recognition
 /// precision (`host/sil/tests/map_loop.rs` `camera_faults_are_counted_and_far_images_refused`:
 /// 0.80 against its 0.85 bound) and widening the elevation check with the reported sigma lost
@@ -107,6 +109,7 @@ pub fn compass_config_departure() -> CompassConfig {
     let mut c = CompassConfig::default();
     c.solver.model_aop_dolp_rad = COMPASS_MODEL_AOP_DOLP_RAD;
     c.azimuth_at_known_elevation = true;
+    c.aop_departure = Some(&crate::compass::departure::OSOAA_CLEAR);
     c
 }
 

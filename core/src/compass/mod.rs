@@ -14,6 +14,8 @@
 //! Frames: body FRD, navigation NED (see [`subnav_wire::messages`]); heading and azimuths are
 //! from north, clockwise.
 
+pub mod departure;
+mod departure_table;
 pub mod sun_vector;
 pub mod unit;
 pub mod water;
@@ -168,6 +170,9 @@ pub struct CompassConfig {
     /// Largest reported heading 1-sigma for a fix (rad); beyond it the field cannot give a
     /// heading (low DoLP, turbid water with a low sun) and the reason is `LowDolp`.
     pub max_sigma_heading_rad: f32,
+    /// With `azimuth_at_known_elevation`: the real field's expected AoP departure from single
+    /// scattering, subtracted from each unit before the azimuth fit ([`departure`]).
+    pub aop_departure: Option<&'static departure::AopDeparture>,
 }
 
 impl Default for CompassConfig {
@@ -188,6 +193,7 @@ impl Default for CompassConfig {
             tilt_sigma_rad: 0.0,
             azimuth_at_known_elevation: false,
             max_sigma_heading_rad: f32::INFINITY,
+            aop_departure: None,
         }
     }
 }
@@ -293,13 +299,19 @@ pub fn measure_sun(
 ) -> Result<SunMeasurement, NoFix> {
     let up = up_from_accel(accel_body_mps2, cfg)?;
     let obs = observe_units(units, counts, cfg)?;
-    measure_sun_from(&obs, &up, cfg)
+    measure_sun_from(&obs, &up, cfg, None)
 }
 
 /// [`measure_sun`] from the kept units and the vertical.
-fn measure_sun_from(obs: &[UnitObservation], up: &Vector3<f32>, cfg: &CompassConfig) -> Result<SunMeasurement, NoFix> {
+fn measure_sun_from(
+    obs: &[UnitObservation],
+    up: &Vector3<f32>,
+    cfg: &CompassConfig,
+    sun_zenith_air_rad: Option<f32>,
+) -> Result<SunMeasurement, NoFix> {
     let up = *up;
-    let sun = sun_vector::solve(obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver)?;
+    let departure = cfg.aop_departure.zip(sun_zenith_air_rad);
+    let sun = sun_vector::solve_with_departure(obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver, departure)?;
     // Level (heading) frame: x = body x projected on the horizontal, z = down.
     let down = -up;
     let xb = Vector3::new(1.0, 0.0, 0.0);
@@ -390,7 +402,15 @@ pub struct CompassInput<'a> {
 pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
     let up = up_from_accel(input.accel_body_mps2, cfg).map_err(|e| (e, None))?;
     let obs = observe_units(units, input.counts, cfg).map_err(|e| (e, None))?;
-    let m = measure_sun_from(&obs, &up, cfg).map_err(|e| match (e, input.unix_us, input.observer) {
+    // With a departure table and the time and place, the sun's zenith from the ephemeris (the
+    // table is indexed by it); without them the departure is left out of the sun vector.
+    let sun_zenith_air = match (cfg.aop_departure, input.unix_us, input.observer) {
+        (Some(_), Some(t), Some(o)) => ephemeris::sun_position(t, &o, Some(&Atmosphere::default()), input.delta_t_s)
+            .ok()
+            .map(|p| (core::f32::consts::FRAC_PI_2 - p.apparent_elevation_rad()).max(0.0)),
+        _ => None,
+    };
+    let m = measure_sun_from(&obs, &up, cfg, sun_zenith_air).map_err(|e| match (e, input.unix_us, input.observer) {
         (NoFix::SunNearZenith, Some(t), Some(o)) if sun_disc_missing(t, &o, input.delta_t_s, cfg) => (NoFix::NoSunDisc, None),
         _ => (e, None),
     })?;
@@ -401,8 +421,17 @@ pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig)
     if cfg.azimuth_at_known_elevation {
         let air_zenith = core::f32::consts::FRAC_PI_2 - fix.ephemeris_elevation_rad;
         let water_el = core::f32::consts::FRAC_PI_2 - water::water_zenith_rad(air_zenith.max(0.0), cfg.n_water);
-        let fit = sun_vector::solve_azimuth(&obs, &up, cfg.fresnel_correction.then_some(cfg.n_water), &cfg.solver, water_el, &m.sun.s_body)
-            .map_err(|e| (e, Some(m)))?;
+        let departure = cfg.aop_departure.map(|t| (t, air_zenith.max(0.0)));
+        let fit = sun_vector::solve_azimuth(
+            &obs,
+            &up,
+            cfg.fresnel_correction.then_some(cfg.n_water),
+            &cfg.solver,
+            water_el,
+            &m.sun.s_body,
+            departure,
+        )
+        .map_err(|e| (e, Some(m)))?;
         let (se, ce) = crate::ephemeris::phase::sincos_rad(water_el);
         let sigma_tilt = cfg.tilt_sigma_rad * se / ce.max(1e-3);
         let sigma = libm::sqrtf(fit.sigma_rel_azimuth_rad * fit.sigma_rel_azimuth_rad + sigma_tilt * sigma_tilt);

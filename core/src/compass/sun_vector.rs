@@ -93,7 +93,7 @@ fn smallest_eigen(m: Matrix3<f32>) -> Result<(Vector3<f32>, [f32; 3]), NoFix> {
 /// AoP shift (rad) of unit `o` caused by the partial polarization of the refracted sunbeam
 /// (Fresnel transmission, T_p > T_s), relative to the pure-Rayleigh e-vector `d x s`.
 /// `s`: toward the refracted sun (body), `up`: toward the sky (body).
-fn fresnel_aop_shift(o: &UnitObservation, s: &Vector3<f32>, up: &Vector3<f32>, n_water: f32) -> Option<f32> {
+pub fn fresnel_aop_shift(view_body: &Vector3<f32>, s: &Vector3<f32>, up: &Vector3<f32>, n_water: f32) -> Option<f32> {
     let k_t = -s; // propagation in water
     let down = -up;
     let cos_t = k_t.dot(&down);
@@ -113,7 +113,7 @@ fn fresnel_aop_shift(o: &UnitObservation, s: &Vector3<f32>, up: &Vector3<f32>, n
     }
     let s_hat = sv / sn;
     let p_hat = s_hat.cross(&k_t);
-    let d = o.view_body;
+    let d = *view_body;
     // Projected field components (P = I - d d^T), then Stokes in a frame (a, b) on the unit.
     let ps = s_hat - d * d.dot(&s_hat);
     let pp = p_hat - d * d.dot(&p_hat);
@@ -131,7 +131,7 @@ fn fresnel_aop_shift(o: &UnitObservation, s: &Vector3<f32>, up: &Vector3<f32>, n
 }
 
 /// Rotates an e-vector by `-delta` about the viewing direction.
-fn rotate_back(o: &UnitObservation, delta: f32) -> Vector3<f32> {
+pub fn rotate_back(o: &UnitObservation, delta: f32) -> Vector3<f32> {
     let (sd, cd) = crate::ephemeris::phase::sincos_rad(delta);
     o.e_body * cd - o.view_body.cross(&o.e_body) * sd
 }
@@ -177,7 +177,10 @@ pub struct AzimuthFit {
 /// departure of the real field from single scattering pulls the measured sun's elevation (by
 /// degrees at a low sun), and in the two-parameter fit that pull leaks into the azimuth; with
 /// the elevation known, only the azimuth is fitted, with one more residual degree of freedom
-/// to check the model. Same weights, Huber IRLS and Fresnel correction as [`solve`].
+/// to check the model. Same weights, Huber IRLS and Fresnel correction as [`solve`]. With
+/// `departure` (a table and the sun's zenith in air, rad) each unit's e-vector is also turned
+/// back by the real field's expected departure at its view ([`super::departure`]), evaluated
+/// at the current azimuth.
 pub fn solve_azimuth(
     obs: &[UnitObservation],
     up_body: &Vector3<f32>,
@@ -185,6 +188,7 @@ pub fn solve_azimuth(
     cfg: &SolverConfig,
     water_elevation_rad: f32,
     s_init: &Vector3<f32>,
+    departure: Option<(&super::departure::AopDeparture, f32)>,
 ) -> Result<AzimuthFit, NoFix> {
     let n = obs.len();
     if n > super::MAX_UNITS || n < cfg.min_units.max(2) as usize {
@@ -216,7 +220,11 @@ pub fn solve_azimuth(
         let (sp, cp) = crate::ephemeris::phase::sincos_rad(psi);
         let ds = (right * cp - fwd * sp) * ce;
         for (ei, o) in e.iter_mut().zip(obs) {
-            let delta = n_water.and_then(|nw| fresnel_aop_shift(o, &s, up_body, nw)).unwrap_or(0.0);
+            let mut delta = n_water.and_then(|nw| fresnel_aop_shift(&o.view_body, &s, up_body, nw)).unwrap_or(0.0);
+            if let Some((table, sun_zenith_rad)) = departure {
+                let view_zenith = libm::acosf(o.view_body.dot(up_body).clamp(-1.0, 1.0));
+                delta += table.at(sun_zenith_rad, view_zenith, rel_azimuth(&o.view_body, &s, up_body));
+            }
             *ei = rotate_back(o, delta);
         }
         for ((ri, ei), o) in r.iter_mut().zip(e.iter()).zip(obs) {
@@ -263,6 +271,26 @@ pub fn solve_azimuth(
 /// With `n_water`, the e-vectors are corrected for the Fresnel polarization of the refracted
 /// sunbeam (computed from the current sun estimate and the vertical; flat-surface model).
 pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f32>, cfg: &SolverConfig) -> Result<SunVector, NoFix> {
+    solve_with_departure(obs, up_body, n_water, cfg, None)
+}
+
+/// Relative azimuth `A_sun - A_look` (rad, clockwise seen from above) of a look direction and
+/// the sun, both body vectors, `up` toward the sky.
+pub fn rel_azimuth(look: &Vector3<f32>, sun: &Vector3<f32>, up: &Vector3<f32>) -> f32 {
+    let lh = look - up * look.dot(up);
+    let sh = sun - up * sun.dot(up);
+    libm::atan2f(-lh.cross(&sh).dot(up), lh.dot(&sh))
+}
+
+/// [`solve`] with the real field's expected AoP departure (a table and the sun's zenith in air,
+/// rad) subtracted from each unit at the current sun estimate, as [`solve_azimuth`] does.
+pub fn solve_with_departure(
+    obs: &[UnitObservation],
+    up_body: &Vector3<f32>,
+    n_water: Option<f32>,
+    cfg: &SolverConfig,
+    departure: Option<(&super::departure::AopDeparture, f32)>,
+) -> Result<SunVector, NoFix> {
     let n = obs.len();
     if n > super::MAX_UNITS {
         return Err(NoFix::BadInput);
@@ -291,7 +319,11 @@ pub fn solve(obs: &[UnitObservation], up_body: &Vector3<f32>, n_water: Option<f3
     let mut r = [0.0f32; super::MAX_UNITS];
     let correct = |e: &mut [Vector3<f32>; super::MAX_UNITS], s: &Vector3<f32>| {
         for (ei, o) in e.iter_mut().zip(obs) {
-            let delta = n_water.and_then(|nw| fresnel_aop_shift(o, s, up_body, nw)).unwrap_or(0.0);
+            let mut delta = n_water.and_then(|nw| fresnel_aop_shift(&o.view_body, s, up_body, nw)).unwrap_or(0.0);
+            if let Some((table, sun_zenith_rad)) = departure {
+                let view_zenith = libm::acosf(o.view_body.dot(up_body).clamp(-1.0, 1.0));
+                delta += table.at(sun_zenith_rad, view_zenith, rel_azimuth(&o.view_body, s, up_body));
+            }
             *ei = rotate_back(o, delta);
         }
     };

@@ -26,10 +26,15 @@
 //! unpolarized, uniform sky refracted through the mean (flat) surface into the Snell cone, 24
 //! beams; the sky kinds set the direct and diffuse shares (clear, partly cloudy with cloud
 //! shadows drifting over the sun, overcast with no sun disc, twilight with the sun below the
-//! horizon and little light). Not modelled: the sky's own polarization, wave focusing of the
-//! beam's irradiance, waves shorter than the sea's cut (they average out over a footprint).
+//! horizon and little light). The real field's departure from this single-scattering model
+//! (polarized multiple scattering, the sky's own polarization, particle polarization) is added
+//! from a table of OSOAA radiative-transfer fields ([`crate::osoaa`], `Water::
+//! polarization_table`): the polarization of a flat sea under a clear sky is then OSOAA's at the
+//! table's cases, with this model's moving-sea fluctuation about it. Not modelled: wave focusing
+//! of the beam's irradiance, waves shorter than the sea's cut (they average out over a
+//! footprint).
 //!
-//! Not modelled in [`Field`] (the flat model): skylight (units must look outside the Snell
+//! Not modelled in [`Field`] (the flat model): the departure table, skylight (units must look outside the Snell
 //! window, i.e. more than ~42 deg below the zenith), the angular extent of the sun, sensor field
 //! of view.
 
@@ -58,6 +63,9 @@ pub struct Water {
     /// RMS surface slope (0 = flat) and the number of facets sampled for a wavy surface.
     pub slope_rms: f64,
     pub facets: usize,
+    /// Add the real field's departure from single scattering to [`SeaField`]'s polarization
+    /// (the OSOAA table, [`crate::osoaa`]); off: the pure single-scattering model.
+    pub polarization_table: bool,
 }
 
 impl Water {
@@ -73,26 +81,43 @@ impl Water {
             multiple_scattering: 0.6,
             slope_rms: 0.0,
             facets: 1,
+            polarization_table: true,
         }
     }
 }
 
 impl Water {
+    /// Clear oceanic water with the optics of the OSOAA reference's clear case (Chl 0.1
+    /// mg/m^3: c = 0.109/m, b = 0.0818/m, single-scattering albedo 0.75; pure water scatters
+    /// about 0.003/m of b at 500 nm, so particles are 0.96 of it), K_d 0.04/m (a + b_b for
+    /// that water, our estimate). What `compass field --water oceanic` compares with OSOAA's
+    /// clear cases; [`Water::clear`] is the simulator's default (more transparent) water.
+    pub fn oceanic() -> Self {
+        Water { c_per_m: 0.109, b_per_m: 0.75 * 0.109, particle_fraction: 0.96, kd_per_m: 0.04, ..Water::clear() }
+    }
+
+    /// Single-scattering albedo b / c.
+    pub fn albedo(&self) -> f64 {
+        if self.c_per_m > 0.0 { (self.b_per_m / self.c_per_m).clamp(0.0, 1.0) } else { 0.0 }
+    }
+
     /// Turbid coastal water: the optics of the OSOAA reference's turbid case (Chl 3 mg/m^3
-    /// plus 1 mg/L minerals: c = 1.056/m, b = 0.974/m, particles 0.974 of b), with our
+    /// plus 1 mg/L minerals: c = 1.056/m, b = 0.977/m (single-scattering albedo 0.925:
+    /// particles 0.974/m, pure water about 0.003/m), with our
     /// guesses for what single scattering needs besides (K_d from a + b_b, the particles'
     /// Henyey-Greenstein asymmetry, the background's strength).
     pub fn turbid() -> Self {
         Water {
             n_water: subnav_core::compass::water::default_index() as f64,
             c_per_m: 1.056,
-            b_per_m: 0.974,
-            particle_fraction: 0.97,
+            b_per_m: 0.925 * 1.056,
+            particle_fraction: 0.997,
             hg_g: 0.92,
             kd_per_m: 0.17,
             multiple_scattering: 0.6,
             slope_rms: 0.0,
             facets: 1,
+            polarization_table: true,
         }
     }
 }
@@ -377,6 +402,44 @@ pub struct SeaField<'a> {
     /// Skylight beams through the mean surface.
     sky_beams: Vec<Beam>,
     level: f64,
+    /// The real field's departure from single scattering (`Water::polarization_table`), and
+    /// the clear sky's beams its reference (the simulator's mean field) is computed with.
+    table: Option<&'a crate::osoaa::Table>,
+    clear_sky_beams: Vec<Beam>,
+}
+
+/// Skylight of a uniform sky of `diffuse` (relative to a clear day's direct beam) through the
+/// flat surface: 4 zenith rings at equal shares of the horizontal irradiance (sin^2 theta
+/// quantiles) x 6 azimuths.
+fn sky_beams(diffuse: f64, water: &Water) -> Vec<Beam> {
+    let mut out = Vec::new();
+    let share = diffuse.max(0.0) / 24.0;
+    if share > 0.0 {
+        for i in 0..4 {
+            let th = ((i as f64 + 0.5) / 4.0).sqrt().asin();
+            for j in 0..6 {
+                let ph = std::f64::consts::TAU * (j as f64 + 0.25 * i as f64) / 6.0;
+                let k_i = Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
+                if let Some(mut b) = refract(k_i, Vector3::z(), water.n_water) {
+                    b.c *= share / th.cos().max(1e-3);
+                    out.push(b);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A look direction turned across a unit's field of view by `f` half-widths (-1, 0, 1).
+fn fov_dir(v: Vector3<f64>, f: f64) -> Vector3<f64> {
+    let lat = v.cross(&Vector3::z());
+    let lat = if lat.norm() > 1e-9 { lat.normalize() } else { Vector3::x() };
+    (v + lat * (f * UNIT_FOV_HALF_RAD.tan())).normalize()
+}
+
+/// The clear sky's beams (the departure table's reference).
+fn sky_beams_clear(water: &Water) -> Vec<Beam> {
+    sky_beams(SkyKind::Clear.light(0.0, 0).diffuse, water)
 }
 
 /// Line-of-sight quadrature points, field-of-view samples across the view, exposure samples.
@@ -406,25 +469,42 @@ impl<'a> SeaField<'a> {
         } else {
             None
         };
-        // Uniform sky: 4 zenith rings at equal shares of the horizontal irradiance
-        // (sin^2 theta quantiles) x 6 azimuths.
-        let mut sky_beams = Vec::new();
-        let share = sky.diffuse.max(0.0) / 24.0;
-        if share > 0.0 {
-            for i in 0..4 {
-                let th = ((i as f64 + 0.5) / 4.0).sqrt().asin();
-                for j in 0..6 {
-                    let ph = std::f64::consts::TAU * (j as f64 + 0.25 * i as f64) / 6.0;
-                    let k_i = Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
-                    if let Some(mut b) = refract(k_i, Vector3::z(), water.n_water) {
-                        b.c *= share / th.cos().max(1e-3);
-                        sky_beams.push(b);
-                    }
-                }
+        let sky_beams = sky_beams(sky.diffuse, &water);
+        let level = direct * (-sun_ned.z).max(0.0) + sky.diffuse.max(0.0);
+        let table = if water.polarization_table { crate::osoaa::Table::osoaa() } else { None };
+        let clear_sky_beams = if table.is_some() { sky_beams_clear(&water) } else { Vec::new() };
+        SeaField { sea, water, depth_m, pos_ne_m, t_s, k_sun, direct, mean_beam, sky_beams, level, table, clear_sky_beams }
+    }
+
+    /// The same field with another departure table (None: pure single scattering), e.g. one
+    /// with cases left out for a leave-one-out check.
+    pub fn with_table(mut self, table: Option<&'a crate::osoaa::Table>) -> Self {
+        if table.is_some() && self.clear_sky_beams.is_empty() {
+            self.clear_sky_beams = sky_beams_clear(&self.water);
+        }
+        self.table = table;
+        self
+    }
+
+    /// The simulator's mean field (flat sea, clear sky) for a sun and depth: what the
+    /// departure table is taken against. Equal to this field's radiance when the sea is flat,
+    /// the sky clear, and the sun and depth this field's.
+    fn mean_radiance(&self, sun_ned: Vector3<f64>, depth_m: f64, v: Vector3<f64>) -> Matrix3<f64> {
+        let clear = SkyKind::Clear.light(0.0, 0);
+        let mut total = Matrix3::zeros();
+        let mut e_total = 0.0;
+        for b in &self.clear_sky_beams {
+            total += single_scatter(&self.water, depth_m, b, v);
+            e_total += b.c.trace();
+        }
+        if let Some(mut beam) = refract(-sun_ned, Vector3::z(), self.water.n_water) {
+            beam.c *= clear.direct;
+            e_total += beam.c.trace();
+            for f in FOV_SAMPLES {
+                total += single_scatter(&self.water, depth_m, &beam, fov_dir(v, f)) / FOV_SAMPLES.len() as f64;
             }
         }
-        let level = direct * (-sun_ned.z).max(0.0) + sky.diffuse.max(0.0);
-        SeaField { sea, water, depth_m, pos_ne_m, t_s, k_sun, direct, mean_beam, sky_beams, level }
+        total + background(&self.water, depth_m, e_total, v)
     }
 
     /// The refracted sun direction through the mean surface (toward the sun, NED).
@@ -480,15 +560,25 @@ impl LightField for SeaField<'_> {
         }
         if let Some(mean) = &self.mean_beam {
             e_total += mean.c.trace();
-            // Across the field of view: the view turned about the vertical by -half, 0, +half.
-            let lat = v.cross(&Vector3::z());
-            let lat = if lat.norm() > 1e-9 { lat.normalize() } else { Vector3::x() };
+            // Across the field of view: the view turned across it by -half, 0, +half.
             for f in FOV_SAMPLES {
-                let vf = (v + lat * (f * UNIT_FOV_HALF_RAD.tan())).normalize();
-                total += self.direct_los(vf, mean) / FOV_SAMPLES.len() as f64;
+                total += self.direct_los(fov_dir(v, f), mean) / FOV_SAMPLES.len() as f64;
             }
         }
-        total + background(&self.water, self.depth_m, e_total, v)
+        let c = total + background(&self.water, self.depth_m, e_total, v);
+        match self.table {
+            Some(table) => crate::osoaa::Departure {
+                table,
+                sun_ned: -self.k_sun,
+                albedo: self.water.albedo(),
+                c_per_m: self.water.c_per_m,
+                depth_m: self.depth_m,
+                wind_mps: self.sea.config().wind_mps,
+                direct: self.direct,
+            }
+            .apply(c, v, |sun, depth, v| self.mean_radiance(sun, depth, v)),
+            None => c,
+        }
     }
 
     fn light_level(&self) -> f64 {
@@ -654,9 +744,10 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let calm = crate::sea::Sea::new(crate::sea::SeaConfig::wind(0.0), 1);
         let s = sun(35.0, 20.0);
+        let water = Water { polarization_table: false, ..Water::clear() };
         for depth in [2.0, 10.0, 40.0] {
-            let flat = Field::new(s, Water::clear(), depth, &mut rng);
-            let sea = SeaField::new(s, SkyLight { direct: 1.0, diffuse: 0.0 }, &calm, Water::clear(), depth, (0.0, 0.0), 0.0);
+            let flat = Field::new(s, water, depth, &mut rng);
+            let sea = SeaField::new(s, SkyLight { direct: 1.0, diffuse: 0.0 }, &calm, water, depth, (0.0, 0.0), 0.0);
             for az in [0.0f64, 70.0, 150.0, 260.0] {
                 let v = Vector3::new(az.to_radians().cos(), az.to_radians().sin(), -0.26).normalize();
                 let (a0, d0, s0) = aop_dolp(&Field::radiance(&flat, v), v);

@@ -110,6 +110,15 @@ fn hangs_end() {
     refused(subnav().args(["compass", "simulate", "--min-elevation-deg", "95"]), &["--min-elevation-deg", "0..=90"]);
     refused(subnav().args(["compass", "simulate", "--min-elevation-deg", "nan"]), &["--min-elevation-deg"]);
     refused(subnav().args(["compass", "geolocate", "--track-s", "10000000000000"]), &["--track-s"]);
+    // A leave-one-out check of the simulator's OSOAA table needs one of the table's cases.
+    refused(
+        subnav().args(["compass", "field", "--sun-zenith-deg", "45", "--depth-m", "10", "--water", "oceanic", "--leave-out", "depth"]),
+        &["--leave-out", "no table case"],
+    );
+    refused(
+        subnav().args(["compass", "field", "--sun-zenith-deg", "30", "--depth-m", "10", "--water", "clear", "--leave-out", "wind"]),
+        &["--leave-out", "--water oceanic or turbid"],
+    );
 
     // A peer that accepts and never sends: `record --duration-s` ends the recording on time
     // (nothing recorded: an error, no file), and `decode --tcp` ends at its idle timeout.

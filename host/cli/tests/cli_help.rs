@@ -30,6 +30,7 @@ const EXPECTED: &[(&str, &str)] = &[
     ("compass csv", "CSV of raw channel counts"),
     ("compass envelope", "operating envelope"),
     ("compass field", "downwelling Stokes field"),
+    ("compass departure-table", "AoP departure table"),
     ("record", "Record telemetry"),
     ("export", "Export a recording"),
     ("sim", "simulated dive scenario"),

@@ -5,6 +5,7 @@
 //! simulator is `subnav_base::sky` (with the sea of `subnav_base::sea`); the compass itself is
 //! `subnav_core::compass`, the same code the firmware runs.
 
+pub mod departure;
 pub mod envelope;
 pub mod geoloc;
 pub mod montecarlo;

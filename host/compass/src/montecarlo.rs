@@ -96,6 +96,18 @@ pub fn compass_config(water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
     }
 }
 
+/// Issue 35's compass settings (`subnav_core::head::compass_config_departure`: the model
+/// departure, the azimuth at the ephemeris's elevation, the OSOAA departure table) for the
+/// simulated head: what the moving-sea runs use, whose field (`subnav_base::sky::SeaField`)
+/// carries the real field's departure from single scattering.
+pub fn compass_config_real_field(water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
+    CompassConfig { ..compass_config_with(subnav_core::head::compass_config_departure(), water, tilt_sigma_rad) }
+}
+
+fn compass_config_with(base: CompassConfig, water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
+    CompassConfig { min_s0: 50.0, n_water: water.n_water as f32, tilt_sigma_rad: tilt_sigma_rad as f32, ..base }
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct ElevationBin {
     pub elevation_deg: [f64; 2],
@@ -214,7 +226,11 @@ pub fn elevation_band_deg(cfg: &McConfig, sky: SkyKind) -> (f64, f64) {
 fn run_sea(cfg: &McConfig, sr: &SeaRun) -> McResult {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let units = sim::default_units(cfg.units);
-    let ccfg = compass_config(&cfg.water, cfg.tilt_sigma_rad);
+    let ccfg = if cfg.water.polarization_table {
+        compass_config_real_field(&cfg.water, cfg.tilt_sigma_rad)
+    } else {
+        compass_config(&cfg.water, cfg.tilt_sigma_rad)
+    };
     let per = sr.scored.max(1);
     let sessions = cfg.draws.div_ceil(per);
     let dt = 1.0 / sr.rate_hz.max(0.1);
@@ -365,8 +381,9 @@ mod tests {
     }
 
     /// A short version of the documented 1,000-draw moving-sea run (docs/PERFORMANCE.md): 10 m,
-    /// clear water and sky, 5 m/s wind. The waves cost accuracy, but the reported sigma (with the
-    /// tracker's wave part) stays honest. Sun 35-70 deg up
+    /// clear water and sky, 5 m/s wind, the field with the real field's departure and issue 35's
+    /// solver. The waves cost accuracy, but the reported sigma (with the tracker's wave part)
+    /// stays honest. Sun 35-70 deg up
     /// (below ~33 deg the skylight's elevation bias gives `Inconsistent`, see the docs).
     #[test]
     fn moving_sea_sigma_is_honest() {
@@ -376,7 +393,12 @@ mod tests {
         assert!(r.fixes >= 55, "{r:?}");
         assert!(r.within_2_sigma >= 0.85, "{r:?}");
         assert!(s.within_2_solver_sigma <= r.within_2_sigma, "{r:?}");
-        assert!(s.rms_wave_sigma_deg > 0.05, "the tracker sees the waves: {r:?}");
+        // The field carries the real field's departure (`Water::polarization_table`) and the
+        // solver is issue 35's, whose model term already covers the waves' scatter at 5 m/s
+        // (the tracker's wave part is the excess over it; its own tests are in
+        // `subnav_core::compass::wave`): either the tracker adds a wave part or the solver's
+        // sigma alone covers the errors.
+        assert!(s.rms_wave_sigma_deg > 0.05 || s.within_2_solver_sigma >= 0.85, "the waves are covered: {r:?}");
         assert!(r.rmse_deg < 3.0, "{r:?}");
     }
 
@@ -406,7 +428,7 @@ mod tests {
     fn blocked_sun_gives_no_fix() {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let units = sim::default_units(8);
-        let ccfg = compass_config(&Water::clear(), 0.0);
+        let ccfg = compass_config_real_field(&Water::clear(), 0.0);
         let sea = Sea::new(SeaConfig::wind(5.0), 3);
         let blocked = SkyKind::PartlyCloudy.light(0.0, 0);
         let blocked = subnav_base::sky::SkyLight { direct: 0.03, ..blocked };

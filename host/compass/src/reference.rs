@@ -234,31 +234,9 @@ impl ReferenceField {
     }
 }
 
-/// Meridian frame (l, r) of a look direction `v` (NED, toward where the light comes from) for a
-/// sun at NED azimuth `sun_az_rad`; returns (view zenith, relative azimuth, l, r).
-pub fn meridian_frame(v: Vector3<f64>, sun_az_rad: f64) -> (f64, f64, Vector3<f64>, Vector3<f64>) {
-    let v = v.normalize();
-    let theta = (-v.z).clamp(-1.0, 1.0).acos();
-    let a_look = v.y.atan2(v.x);
-    let phi = (sun_az_rad - a_look).rem_euclid(std::f64::consts::TAU);
-    // Reference axes in NED: x toward the sun's azimuth, z up, y = z x x.
-    let (sa, ca) = sun_az_rad.sin_cos();
-    let (x, y, z) = (Vector3::new(ca, sa, 0.0), Vector3::new(sa, -ca, 0.0), Vector3::new(0.0, 0.0, -1.0));
-    let (st, ct) = theta.sin_cos();
-    let (sp, cp) = phi.sin_cos();
-    let l = x * (-ct * cp) + y * (-ct * sp) + z * st;
-    let r = x * (-sp) + y * cp;
-    (theta, phi, l, r)
-}
-
-/// Coherency matrix of Stokes (I, Q, U) in the frame (l, r): `S0 = C_ll + C_rr`, `S1 = C_ll -
-/// C_rr`, `S2 = 2 C_lr` (the inverse of `subnav_base::sky::stokes`).
-pub fn coherency(s: [f64; 3], l: &Vector3<f64>, r: &Vector3<f64>) -> Matrix3<f64> {
-    let ll = l * l.transpose();
-    let rr = r * r.transpose();
-    let lr = l * r.transpose() + r * l.transpose();
-    (ll + rr) * (0.5 * s[0]) + (ll - rr) * (0.5 * s[1]) + lr * (0.5 * s[2])
-}
+/// Meridian frame and coherency: `subnav_base::osoaa`'s (the simulator's departure table uses
+/// the same convention).
+pub use subnav_base::osoaa::{coherency, meridian_frame};
 
 /// The reference field around a sun at a NED azimuth, seen by a unit with the head's field of
 /// view (averaged, as `subnav_base::sky::SeaField` does, over the view turned about the vertical
@@ -322,14 +300,35 @@ impl ReferenceField {
     }
 
     /// The simulator's own downwelling field (`subnav_base::sky::SeaField`: the sun at
-    /// `sun_zenith_deg` under a clear sky, a moving sea under `wind_mps` frozen at t = 0, the
-    /// water) on the reference grid: view zenith 0-80 deg by 5, relative azimuth 0-345 by 15.
-    /// I is in the simulator's own unit (irradiance-normalised); compare DoLP and AoP.
+    /// `sun_zenith_deg` under a clear sky, the water, with its departure table) on the reference
+    /// grid: view zenith 0-80 deg by 5, relative azimuth 0-345 by 15. Under wind the mean of
+    /// the Stokes over [`SEA_INSTANTS`] instants 0.7 s apart of a moving sea (the reference is a
+    /// mean over the sea's slopes). I is in the simulator's own unit (irradiance-normalised);
+    /// compare DoLP and AoP.
     pub fn simulated(sun_zenith_deg: f64, depth_m: f64, wind_mps: f64, water: sim::Water, seed: u64) -> Self {
+        let table = if water.polarization_table { subnav_base::osoaa::Table::osoaa() } else { None };
+        Self::simulated_with(sun_zenith_deg, depth_m, wind_mps, water, seed, table)
+    }
+
+    /// [`ReferenceField::simulated`] with a given departure table (None: pure single scattering).
+    pub fn simulated_with(
+        sun_zenith_deg: f64,
+        depth_m: f64,
+        wind_mps: f64,
+        water: sim::Water,
+        seed: u64,
+        table: Option<&subnav_base::osoaa::Table>,
+    ) -> Self {
         let sea = subnav_base::sea::Sea::new(subnav_base::sea::SeaConfig::wind(wind_mps), seed);
         let z = sun_zenith_deg.to_radians();
         let sun_ned = Vector3::new(z.sin(), 0.0, -z.cos()); // sun azimuth 0 (north)
-        let field = sim::SeaField::new(sun_ned, sim::SkyKind::Clear.light(0.0, seed), &sea, water, depth_m, (0.0, 0.0), 0.0);
+        let instants = if sea.is_flat() { 1 } else { SEA_INSTANTS };
+        let fields: Vec<_> = (0..instants)
+            .map(|k| {
+                sim::SeaField::new(sun_ned, sim::SkyKind::Clear.light(0.0, seed), &sea, water, depth_m, (0.0, 0.0), 0.7 * k as f64)
+                    .with_table(table)
+            })
+            .collect();
         let zenith_rad: Vec<f64> = (0..=16).map(|i| (5.0 * i as f64).to_radians()).collect();
         let azimuth_rad: Vec<f64> = (0..24).map(|i| (15.0 * i as f64).to_radians()).collect();
         let mut stokes = Vec::with_capacity(zenith_rad.len() * azimuth_rad.len());
@@ -344,12 +343,22 @@ impl ReferenceField {
                 let (x, y, up) = (Vector3::x(), -Vector3::y(), -Vector3::z());
                 let l = x * (-ct * cp) + y * (-ct * sp) + up * st;
                 let r = x * (-sp) + y * cp;
-                stokes.push(sim::stokes(&LightField::radiance(&field, v), &l, &r));
+                let mut acc = [0.0; 3];
+                for f in &fields {
+                    let s = sim::stokes(&LightField::radiance(f, v), &l, &r);
+                    for k in 0..3 {
+                        acc[k] += s[k] / instants as f64;
+                    }
+                }
+                stokes.push(acc);
             }
         }
         ReferenceField { zenith_rad, azimuth_rad, stokes }
     }
 }
+
+/// Instants of a moving sea averaged by [`ReferenceField::simulated`].
+pub const SEA_INSTANTS: usize = 16;
 
 /// How two fields on the same grid differ: AoP (where both DoLPs exceed a threshold) and DoLP.
 #[derive(Debug, Clone, Serialize)]
@@ -421,6 +430,21 @@ pub struct ReferenceConfig {
     /// Run the head's own solver settings (`head::compass_config`: pure single scattering, as
     /// the firmware runs it) instead of issue 35's (`head::compass_config_departure`).
     pub single_scattering_solver: bool,
+    /// The AoP departure table issue 35's solver subtracts (`subnav_core::compass::departure`).
+    pub departure: DepartureTable,
+}
+
+/// Which AoP departure table the solver uses in [`run`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DepartureTable {
+    /// None (the model-departure sigma and the azimuth fit alone).
+    Off,
+    /// The head's (`OSOAA_CLEAR`: every depth and wind of OSOAA's clear water, so on these
+    /// fields partly the table agreeing with itself).
+    Head,
+    /// Built from the other depths than the run's (`--depth-m`): the leave-one-out check.
+    #[default]
+    LeaveDepthOut,
 }
 
 impl Default for ReferenceConfig {
@@ -435,6 +459,7 @@ impl Default for ReferenceConfig {
             errors: SensorErrors::default(),
             seed: 1,
             single_scattering_solver: false,
+            departure: DepartureTable::default(),
         }
     }
 }
@@ -475,7 +500,15 @@ pub fn run(field: &ReferenceField, cfg: &ReferenceConfig) -> ReferenceResult {
         if cfg.single_scattering_solver { subnav_core::head::compass_config() } else { subnav_core::head::compass_config_departure() };
     let host = compass_config(&sim::Water::clear(), cfg.tilt_sigma_rad);
     // n = 1.34: OSOAA's index (README).
-    let ccfg = CompassConfig { min_s0: host.min_s0, tilt_sigma_rad: host.tilt_sigma_rad, n_water: 1.34, ..base };
+    let aop_departure: Option<&'static compass::departure::AopDeparture> = match cfg.departure {
+        _ if cfg.single_scattering_solver => None,
+        DepartureTable::Off => None,
+        DepartureTable::Head => Some(&compass::departure::OSOAA_CLEAR),
+        DepartureTable::LeaveDepthOut => {
+            subnav_base::osoaa::Table::osoaa().map(|t| &*Box::leak(Box::new(crate::departure::aop_departure(t, 1.34, Some(cfg.depth_m)))))
+        }
+    };
+    let ccfg = CompassConfig { min_s0: host.min_s0, tilt_sigma_rad: host.tilt_sigma_rad, n_water: 1.34, aop_departure, ..base };
     let el_deg = 90.0 - cfg.sun_zenith_deg;
     let v3 = |x: [f32; 3]| Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
     let (mut errs, mut no_fix) = (Vec::new(), BTreeMap::new());

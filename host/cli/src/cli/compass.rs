@@ -42,6 +42,9 @@ pub enum Sub {
     /// (`view_zenith_deg,rel_azimuth_deg,I,Q,U,...`, the OSOAA convention), and with
     /// --compare, how it differs from a reference field.
     Field(FieldArgs),
+    /// Print the compass's AoP departure table (`core/src/compass/departure_table.rs`) from
+    /// the simulator's OSOAA table.
+    DepartureTable,
     /// Run the compass on a CSV of raw channel counts, one solve per row.
     Csv {
         /// The CSV (header, then `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,...`).
@@ -114,8 +117,21 @@ pub struct SimulateArgs {
     /// firmware runs it) instead of the model-departure solver (`head::compass_config_departure`).
     #[arg(long, requires = "reference_field")]
     pub single_scattering_solver: bool,
+    /// With --reference-field: the AoP departure table the solver subtracts: built from the
+    /// other depths than --depth-m (leave-depth-out, the default: the honest check on OSOAA's
+    /// own fields), the head's (every depth), or none.
+    #[arg(long, value_enum, default_value_t = DepartureKind::LeaveDepthOut, requires = "reference_field")]
+    pub departure: DepartureKind,
     #[command(flatten)]
     pub sky: Sky,
+}
+
+/// `compass simulate --reference-field --departure`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DepartureKind {
+    LeaveDepthOut,
+    Head,
+    Off,
 }
 
 /// Water of `compass field`.
@@ -123,8 +139,23 @@ pub struct SimulateArgs {
 pub enum WaterKind {
     /// The simulator's clear oceanic water (`subnav_base::sky::Water::clear`).
     Clear,
+    /// Clear oceanic water with the OSOAA clear case's optics (`subnav_base::sky::Water::oceanic`).
+    Oceanic,
     /// Turbid coastal water (`subnav_base::sky::Water::turbid`: the OSOAA turbid case's optics).
     Turbid,
+}
+
+/// What `compass field --leave-out` removes from the departure table before simulating.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LeaveOutKind {
+    /// The case itself (sun, wind, water, depth): its depth from the other depths.
+    Depth,
+    /// The case's wind for its water: the other wind's departure.
+    Wind,
+    /// The case's sun zenith for its water and wind: the other sun's departure.
+    Sun,
+    /// The case's water: the other water's departure.
+    Water,
 }
 
 #[derive(Debug, clap::Args)]
@@ -154,6 +185,14 @@ pub struct FieldArgs {
     /// Sea seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The pure single-scattering simulator (no departure table).
+    #[arg(long, conflicts_with = "leave_out")]
+    pub single_scattering: bool,
+    /// Leave-one-out check of the departure table: simulate without the table's case(s) for
+    /// these conditions (--sun-zenith-deg, --wind-mps, --water, --depth-m must be a table case:
+    /// sun 30 or 60, wind 0 or 5, oceanic or turbid, depth 5, 10 or 20).
+    #[arg(long, value_enum)]
+    pub leave_out: Option<LeaveOutKind>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -241,6 +280,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         }
         Sub::Csv { file } => from_csv(&file, format),
         Sub::Field(a) => field(&a, format),
+        Sub::DepartureTable => {
+            let t = subnav_base::osoaa::Table::osoaa().context("the embedded departure table does not parse (a build defect)")?;
+            print!("{}", subnav_compass::departure::table_source(&subnav_compass::departure::aop_departure(t, 1.34, None)));
+            Ok(ExitCode::SUCCESS)
+        }
         Sub::Envelope(a) => envelope(&a, format),
     }
 }
@@ -389,6 +433,11 @@ fn reference(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
         tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
         seed: args.sky.seed,
         single_scattering_solver: args.single_scattering_solver,
+        departure: match args.departure {
+            DepartureKind::LeaveDepthOut => rf::DepartureTable::LeaveDepthOut,
+            DepartureKind::Head => rf::DepartureTable::Head,
+            DepartureKind::Off => rf::DepartureTable::Off,
+        },
         ..rf::ReferenceConfig::default()
     };
     let r = rf::run(&field, &cfg);
@@ -430,10 +479,41 @@ fn reference(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
 
 /// `compass field`: the simulator's field as a reference CSV, and its difference from one.
 fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
+    use subnav_base::osoaa::{LeaveOut, Table};
     use subnav_compass::reference as rf;
     let water = match args.water {
         WaterKind::Clear => sim::Water::clear(),
+        WaterKind::Oceanic => sim::Water::oceanic(),
         WaterKind::Turbid => sim::Water::turbid(),
+    };
+    let water = sim::Water { polarization_table: !args.single_scattering, ..water };
+    let full = Table::osoaa().context("the embedded departure table does not parse (a build defect)")?;
+    let left_out = match args.leave_out {
+        None => None,
+        Some(k) => {
+            let turbid = match args.water {
+                WaterKind::Oceanic => false,
+                WaterKind::Turbid => true,
+                WaterKind::Clear => bail!("--leave-out needs a table case: --water oceanic or turbid"),
+            };
+            let what = match k {
+                LeaveOutKind::Depth => LeaveOut::Depth,
+                LeaveOutKind::Wind => LeaveOut::Wind,
+                LeaveOutKind::Sun => LeaveOut::Sun,
+                LeaveOutKind::Water => LeaveOut::Water,
+            };
+            let t = full.without(args.sun_zenith_deg, args.wind_mps, turbid, args.depth_m, what);
+            if t.cases.len() == full.cases.len() {
+                bail!(
+                    "--leave-out: no table case at sun zenith {} deg, wind {} m/s, {:?} water, {} m (cases: sun 30 or 60, wind 0 or 5, depth 5, 10 or 20)",
+                    args.sun_zenith_deg,
+                    args.wind_mps,
+                    args.water,
+                    args.depth_m
+                );
+            }
+            Some(t)
+        }
     };
     // Read the reference first: a bad file is refused before anything is written.
     let reference = match &args.compare {
@@ -443,7 +523,8 @@ fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
         }
         None => None,
     };
-    let f = rf::ReferenceField::simulated(args.sun_zenith_deg, args.depth_m, args.wind_mps, water, args.seed);
+    let table = if args.single_scattering { None } else { Some(left_out.as_ref().unwrap_or(full)) };
+    let f = rf::ReferenceField::simulated_with(args.sun_zenith_deg, args.depth_m, args.wind_mps, water, args.seed, table);
     let csv = f.to_csv();
     match &args.output {
         Some(p) => {
