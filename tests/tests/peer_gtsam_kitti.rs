@@ -140,9 +140,9 @@ fn kitti_60s_filter_runs_and_gate_handles_a_jump() {
 
 /// The whole drive (470 s): with clean fixes the adaptive gate (the default, issue 36) costs at
 /// most 10 % of held-out RMSE against no gate, in the batch and in real time (measured: 1.206 vs
-/// 1.395 m and 11.29 vs 12.27 m, docs/PERFORMANCE.md); with 20 % of the fixes jumped by 10-20 m
+/// 1.395 m and 12.46 vs 12.27 m, docs/PERFORMANCE.md); with 20 % of the fixes jumped by 10-20 m
 /// the gated batch beats the ungated one (measured 4.61 vs 4.96 m). Not asserted because it does
-/// not hold: the real-time smoother with the jumps (26.6 m gated vs 22.8 m ungated).
+/// not hold: the real-time smoother with the jumps (28.7 m gated vs 22.8 m ungated).
 #[test]
 fn kitti_full_clean_adaptive_gate_costs_little_and_beats_off_with_jumps() {
     use subnav_fgo::factors::Factor;

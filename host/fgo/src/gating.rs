@@ -12,9 +12,8 @@
 //!   and bias random-walk covariances) is estimated from the fixes' innovations, accepted and
 //!   refused alike, as the `s` for which their median test value equals the median of chi2
 //!   ([`imu_noise_scale`]); the IMU factors carry it, and the test is made at it. In real time
-//!   (the smoother) the innovations are the predictions at arrival (the last [`ADAPT_WINDOW`]),
-//!   and after each update the window's fixes are decided again on their deletion innovations
-//!   (with the fixes that came after them). In the batch, [`robust_batch`] (data snooping).
+//!   (the smoother) the innovations are the predictions at arrival (the last [`ADAPT_WINDOW`]).
+//!   In the batch, the deletion innovations and data snooping ([`robust_batch`]).
 //! - DVL and ranges: `gamma` is divided by a robust scale of the sensor's recent innovations,
 //!   `s = max(1, median(gamma of the last ADAPT_WINDOW decisions) / median(chi2(dim)))`.
 //!
@@ -80,9 +79,6 @@ pub struct GateLog {
     pub decisions: Vec<Decision>,
     /// Observations dropped because their valid time was older than the smoother window.
     pub dropped_too_old: usize,
-    /// Decisions on USBL fixes that flipped when the window re-decided them (adaptive gate).
-    #[serde(default)]
-    pub redecided: usize,
 }
 
 impl GateLog {

@@ -9,9 +9,7 @@
 //! 3. gate the observation ([`super::gating`]), inflate its covariance if abnormal, add it
 //!    (adaptive gate, USBL fixes: the IMU noise scale is first re-estimated from the fixes'
 //!    innovations and the window's IMU factors take it);
-//! 4. a few Levenberg-Marquardt iterations over the window (adaptive gate, after a USBL fix: the
-//!    window's fixes decided again on their deletion innovations, and solved again if a decision
-//!    flipped);
+//! 4. a few Levenberg-Marquardt iterations over the window;
 //! 5. nodes older than the lag are marginalised (Schur complement) into a prior on the oldest
 //!    kept node; their factors go to an archive with the final covariances.
 //!
@@ -84,10 +82,6 @@ pub fn thread_cpu_s() -> Option<f64> {
     // SAFETY: `ts` is a valid, writable timespec; the call only writes into it.
     let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
     (rc == 0).then(|| ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
-}
-
-fn chi2_threshold(cfg: &GatingConfig) -> Result<f64, FgoError> {
-    Ok(subnav_base::chi2::chi2_quantile(3, cfg.confidence)?)
 }
 
 /// Estimated node with its time and global id.
@@ -287,39 +281,6 @@ impl Smoother {
         self.factors.iter_mut().for_each(|f| f.set_imu_noise_scale(s));
     }
 
-    /// Adaptive gate, after an update: every USBL fix in the window is decided again on its
-    /// deletion innovation ([`gating::deletion`]: against the window's trajectory without it, so
-    /// with the fixes that came after it), at the current IMU noise scale; if a decision flips,
-    /// the window is solved again. Returns the number of flips.
-    fn redecide_window(&mut self) -> Result<usize, FgoError> {
-        let inn = gating::deletion_innovations(&self.nodes, &self.factors, self.imu_scale)?;
-        if inn.is_empty() {
-            return Ok(0);
-        }
-        let thr = chi2_threshold(&self.cfg.gating)?;
-        let gammas = inn.iter().map(|i| i.gamma_at(self.imu_scale)).collect::<Result<Vec<f64>, FgoError>>()?;
-        let arrival = self.usbl_innovations.iter().map(|i| i.gamma_at(self.imu_scale)).collect::<Result<Vec<f64>, FgoError>>()?;
-        let rs = gating::robust_scale(&arrival, 3)?;
-        let mut flips = 0;
-        let mut it = gammas.iter();
-        for f in self.factors.iter_mut() {
-            if let Factor::Usbl(u) = f {
-                let g = *it.next().ok_or_else(|| FgoError::Numeric("fix count changed".into()))?;
-                let k = if g / rs > thr { g / (rs * thr) } else { 1.0 };
-                if (k > 1.0) != (u.kappa > 1.0) {
-                    flips += 1;
-                }
-                u.noise = u.noise.scaled(k / u.kappa);
-                u.kappa = k;
-            }
-        }
-        if flips > 0 {
-            let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
-            solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-        }
-        Ok(flips)
-    }
-
     fn optimize_and_marginalize(&mut self) -> Result<(), FgoError> {
         let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
         solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
@@ -461,14 +422,7 @@ impl Smoother {
             kappa: 1.0,
         });
         self.gated_add(t_valid, Sensor::Usbl, f, k)?;
-        if self.cfg.gating.enabled && self.cfg.gating.adaptive {
-            let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
-            solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-            self.gate_log.redecided += self.redecide_window()?;
-            self.marginalize_and_output()?;
-        } else {
-            self.optimize_and_marginalize()?;
-        }
+        self.optimize_and_marginalize()?;
         self.latency_s.push(start.elapsed().as_secs_f64());
         if let (Some(a), Some(b)) = (cpu0, thread_cpu_s()) {
             self.cpu_s.push(b - a);
