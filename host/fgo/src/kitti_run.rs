@@ -220,6 +220,10 @@ pub struct GraphRun {
     /// batch re-decision, [`super::gating::robust_batch`]).
     pub batch_inflated: usize,
     pub batch_report: LmReport,
+    /// IMU noise variance scale of the batch problem (1: the metadata's noise), and the
+    /// smoother's at the end of the run (adaptive gate, [`super::gating::imu_noise_scale`]).
+    pub imu_scale: f64,
+    pub realtime_imu_scale: f64,
     /// Thread CPU time of all smoother updates, and of the batch LM, s.
     pub smoother_cpu_s: f64,
     pub batch_cpu_s: f64,
@@ -283,10 +287,10 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     let mut batch = initial.clone();
     let t_b = std::time::Instant::now();
     let c0 = thread_cpu_s();
-    let (batch_report, batch_inflated) = if cfg.gating.enabled && cfg.gating.adaptive {
+    let (batch_report, batch_inflated, imu_scale) = if cfg.gating.enabled && cfg.gating.adaptive {
         super::gating::robust_batch(&mut batch, &mut factors, &cfg.gating, &batch_lm_options())?
     } else {
-        (solver::solve_lm(&mut batch, &factors, &batch_lm_options())?, sm.gate_log.count(Sensor::Usbl, true))
+        (solver::solve_lm(&mut batch, &factors, &batch_lm_options())?, sm.gate_log.count(Sensor::Usbl, true), sm.imu_scale)
     };
     let batch_cpu_s = match (c0, thread_cpu_s()) {
         (Some(a), Some(b)) => b - a,
@@ -302,6 +306,8 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         gate_log: sm.gate_log,
         batch_inflated,
         batch_report,
+        imu_scale,
+        realtime_imu_scale: sm.imu_scale,
         smoother_cpu_s,
         batch_cpu_s,
         smoother_wall_s,
@@ -465,12 +471,18 @@ fn dm(m: &nalgebra::DMatrix<f64>) -> Value {
 /// smoother. The peer builds it from GTSAM's C++ factors only.
 pub fn gtsam_problem(data: &KittiData, sc: &Scenario, run: &GraphRun, lag_s: f64) -> Result<Value, FgoError> {
     let p = &sc.imu;
+    // the batch problem's IMU noise scale (the preintegrated covariance is linear in the noise
+    // densities, so scaling them scales it; the bias random walks go with their covariances)
+    let s = run.imu_scale;
     let mut imu = Vec::new();
     let mut bias_rw = Vec::new();
     let mut gps = Vec::new();
     let mut n_prior = 0;
     for f in &run.factors {
         match f {
+            Factor::Imu(x) if (x.noise_scale - s).abs() > 1e-12 * s => {
+                return Err(FgoError::Numeric(format!("IMU factor at scale {} in a problem at {s}", x.noise_scale)));
+            }
             Factor::Imu(x) => imu.push(json!({
                 "i": x.node_i, "j": x.node_j, "bias_hat": x.pim.bias_hat.to_array(),
                 "samples": imu_pieces(&data.imu, run.times[x.node_i], run.times[x.node_j])?,
@@ -488,8 +500,8 @@ pub fn gtsam_problem(data: &KittiData, sc: &Scenario, run: &GraphRun, lag_s: f64
     let rot0 = so3::exp(&Vector3::from(pr.rotvec_enu_flu));
     Ok(json!({
         "params": {
-            "gravity": p.gravity_enu_mps2, "acc_cov": m3(&p.acc_cov()), "gyro_cov": m3(&p.gyro_cov()),
-            "int_cov": m3(&p.integration_cov()),
+            "gravity": p.gravity_enu_mps2, "acc_cov": m3(&(p.acc_cov() * s)), "gyro_cov": m3(&(p.gyro_cov() * s)),
+            "int_cov": m3(&(p.integration_cov() * s)),
         },
         "times": run.times,
         "nodes": run.initial.iter().map(node_json).collect::<Vec<_>>(),

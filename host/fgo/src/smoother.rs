@@ -6,7 +6,9 @@
 //!    the IMU up to it; between two window nodes (a late USBL fix), split that IMU interval and
 //!    re-preintegrate both halves from the stored samples (time stamps, no interpolation);
 //! 2. marginal covariance `P` of that node from the window's information (sparse Cholesky);
-//! 3. gate the observation ([`super::gating`]), inflate its covariance if abnormal, add it;
+//! 3. gate the observation ([`super::gating`]), inflate its covariance if abnormal, add it
+//!    (adaptive gate, USBL fixes: the IMU noise scale is first re-estimated from the fixes'
+//!    innovations and the window's IMU factors take it);
 //! 4. a few Levenberg-Marquardt iterations over the window;
 //! 5. nodes older than the lag are marginalised (Schur complement) into a prior on the oldest
 //!    kept node; their factors go to an archive with the final covariances.
@@ -111,6 +113,12 @@ pub struct Smoother {
     /// processes on a loaded machine). Empty where the thread CPU clock is unavailable.
     pub cpu_s: Vec<f64>,
     next_id: usize,
+    /// IMU noise variance scale (adaptive gate; 1 = the IMU parameters as given), estimated from
+    /// the innovations of the USBL fixes ([`gating::imu_noise_scale`]); new and window IMU
+    /// factors carry it.
+    pub imu_scale: f64,
+    /// The last [`gating::ADAPT_WINDOW`] USBL innovations at arrival.
+    usbl_innovations: Vec<gating::Innovation>,
 }
 
 impl Smoother {
@@ -140,6 +148,8 @@ impl Smoother {
             latency_s: Vec::new(),
             cpu_s: Vec::new(),
             next_id: 1,
+            imu_scale: 1.0,
+            usbl_innovations: Vec::new(),
         };
         Ok(s)
     }
@@ -167,7 +177,10 @@ impl Smoother {
     fn imu_pair(&self, i: usize, j: usize, pim: Preintegrated) -> Result<[Factor; 2], FgoError> {
         let dt = pim.delta_t_s;
         let p = self.conf.imu;
-        Ok([Factor::Imu(ImuFactor::new(i, j, pim)?), Factor::BiasRw(BiasRandomWalkFactor::new(i, j, p.acc_bias_rw, p.gyro_bias_rw, dt)?)])
+        let mut pair =
+            [Factor::Imu(ImuFactor::new(i, j, pim)?), Factor::BiasRw(BiasRandomWalkFactor::new(i, j, p.acc_bias_rw, p.gyro_bias_rw, dt)?)];
+        pair.iter_mut().for_each(|f| f.set_imu_noise_scale(self.imu_scale));
+        Ok(pair)
     }
 
     /// Local index of the node at `t`, creating it if needed; `None` if `t` is before the window.
@@ -226,8 +239,26 @@ impl Smoother {
             _ => return Err(FgoError::Input("only DVL/USBL/range factors are gated".into())),
         };
         let h = &e.jacobians[0];
-        let scale = if self.cfg.gating.adaptive { self.gate_log.adaptive_scale(sensor, e.residual.len())? } else { 1.0 };
-        let d = gating::gate_scaled(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating, scale)?;
+        let d = if self.cfg.gating.enabled && self.cfg.gating.adaptive && sensor == Sensor::Usbl {
+            // the IMU noise scale from the fixes' innovations, this one included (accepted or
+            // not), then the test at that scale
+            let hph = h * DMatrix::from_iterator(15, 15, p.iter().copied()) * h.transpose();
+            let inn = gating::Innovation { r: e.residual.clone(), hph, r_cov: cov.clone(), imu_scale: self.imu_scale };
+            if self.usbl_innovations.len() == gating::ADAPT_WINDOW {
+                self.usbl_innovations.remove(0);
+            }
+            self.usbl_innovations.push(inn.clone());
+            if let Some(s) = gating::imu_noise_scale(&self.usbl_innovations)? {
+                self.set_imu_scale(s);
+            }
+            let gamma = inn.gamma_at(self.imu_scale)?;
+            let gammas = self.usbl_innovations.iter().map(|i| i.gamma_at(self.imu_scale)).collect::<Result<Vec<f64>, FgoError>>()?;
+            let scale = gating::robust_scale(&gammas, e.residual.len())?;
+            gating::decide(t, sensor, gamma, e.residual.len(), &self.cfg.gating, scale)?
+        } else {
+            let scale = if self.cfg.gating.adaptive { self.gate_log.adaptive_scale(sensor, e.residual.len())? } else { 1.0 };
+            gating::gate_scaled(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating, scale)?
+        };
         if d.kappa != 1.0 {
             match &mut f {
                 Factor::Dvl(x) => x.noise = x.noise.scaled(d.kappa),
@@ -242,6 +273,12 @@ impl Smoother {
         self.gate_log.decisions.push(d);
         self.factors.push(f);
         Ok(())
+    }
+
+    /// The IMU noise scale of new and window IMU factors.
+    fn set_imu_scale(&mut self, s: f64) {
+        self.imu_scale = s;
+        self.factors.iter_mut().for_each(|f| f.set_imu_noise_scale(s));
     }
 
     fn optimize_and_marginalize(&mut self) -> Result<(), FgoError> {
@@ -461,6 +498,10 @@ pub struct RunResult {
     pub cpu_s: Vec<f64>,
     pub batch_report: Option<solver::LmReport>,
     pub batch_factors: Vec<Factor>,
+    /// The IMU noise variance scale at the end of the real-time run, and the batch's (adaptive
+    /// gate; 1 otherwise).
+    pub realtime_imu_scale: f64,
+    pub batch_imu_scale: f64,
 }
 
 /// Process a whole log in arrival order (real time), then optionally the batch LM.
@@ -501,10 +542,14 @@ pub fn run(log: &SensorLog, cfg: SmootherConfig, batch: bool, mut progress: impl
     }
     let (mut est, mut factors) = sm.batch_problem();
     let mut report = None;
+    let realtime_imu_scale = sm.imu_scale;
+    let mut batch_imu_scale = 1.0;
     if batch {
         let mut nodes: Vec<NodeState> = est.iter().map(|e| e.state).collect();
         report = Some(if cfg.gating.enabled && cfg.gating.adaptive {
-            gating::robust_batch(&mut nodes, &mut factors, &cfg.gating, &LmOptions::default())?.0
+            let (r, _, s) = gating::robust_batch(&mut nodes, &mut factors, &cfg.gating, &LmOptions::default())?;
+            batch_imu_scale = s;
+            r
         } else {
             solver::solve_lm(&mut nodes, &factors, &LmOptions::default())?
         });
@@ -520,6 +565,8 @@ pub fn run(log: &SensorLog, cfg: SmootherConfig, batch: bool, mut progress: impl
         cpu_s: sm.cpu_s,
         batch_report: report,
         batch_factors: factors,
+        realtime_imu_scale,
+        batch_imu_scale,
     })
 }
 

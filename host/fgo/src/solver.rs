@@ -400,6 +400,53 @@ pub fn marginal_covariance(nodes: &[NodeState], factors: &[Factor], k: usize) ->
     Ok((m + m.transpose()) * 0.5)
 }
 
+/// Marginal covariances (15x15) of the nodes `ks`, at the current estimate, from one
+/// factorisation. On a chain the diagonal blocks of the inverse come from a forward and a
+/// backward Schur-complement sweep (`A_i = H_ii - H_i,i-1 A_i-1^-1 H_i-1,i`, `C_i` the same from
+/// the other end; the marginal information of node i is `A_i + C_i - H_ii`), O(n) in all.
+pub fn marginal_covariances(nodes: &[NodeState], factors: &[Factor], ks: &[usize]) -> Result<Vec<Matrix15>, FgoError> {
+    if let Some(k) = ks.iter().find(|k| **k >= nodes.len()) {
+        return Err(FgoError::Input(format!("no node {k}")));
+    }
+    if !is_chain(nodes.len(), factors) {
+        return ks.iter().map(|k| marginal_covariance(nodes, factors, *k)).collect();
+    }
+    let n = nodes.len();
+    let mut ch = Chain::new(n);
+    ch.fill(nodes, factors)?;
+    let not_pd = || FgoError::Numeric("information matrix not positive definite".into());
+    let sym = |m: Matrix15| (m + m.transpose()) * 0.5;
+    // forward: fwd[i] = information of node i with the nodes before it marginalised
+    let mut fwd = Vec::with_capacity(n);
+    for i in 0..n {
+        let mut a = ch.diag[i];
+        if i > 0 {
+            let prev: &Matrix15 = &fwd[i - 1];
+            let b = ch.sub[i - 1];
+            let c = nalgebra::Cholesky::new(sym(*prev)).ok_or_else(not_pd)?;
+            a -= b * c.solve(&b.transpose());
+        }
+        fwd.push(sym(a));
+    }
+    let mut bwd = vec![Matrix15::zeros(); n];
+    for i in (0..n).rev() {
+        let mut a = ch.diag[i];
+        if i + 1 < n {
+            let b = ch.sub[i];
+            let c = nalgebra::Cholesky::new(bwd[i + 1]).ok_or_else(not_pd)?;
+            a -= b.transpose() * c.solve(&b);
+        }
+        bwd[i] = sym(a);
+    }
+    ks.iter()
+        .map(|k| {
+            let info = sym(fwd[*k] + bwd[*k] - ch.diag[*k]);
+            let c = nalgebra::Cholesky::new(info).ok_or_else(not_pd)?;
+            Ok(sym(c.inverse()))
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -421,6 +468,14 @@ mod tests {
             let d = inv.view((15 * k, 15 * k), (15, 15));
             let err = (0..15).flat_map(|r| (0..15).map(move |c| (r, c))).map(|(r, c)| (m[(r, c)] - d[(r, c)]).abs()).fold(0.0, f64::max);
             assert!(err <= 1e-6 * d.amax(), "node {k}: {err} of {}", d.amax());
+        }
+        // all of them at once (the two-sided sweep) against the same dense inverse
+        let ks: Vec<usize> = (0..nodes.len()).collect();
+        let all = marginal_covariances(&nodes, &res.batch_factors, &ks).unwrap();
+        for (k, m) in all.iter().enumerate() {
+            let d = inv.view((15 * k, 15 * k), (15, 15));
+            let err = (0..15).flat_map(|r| (0..15).map(move |c| (r, c))).map(|(r, c)| (m[(r, c)] - d[(r, c)]).abs()).fold(0.0, f64::max);
+            assert!(err <= 1e-6 * d.amax(), "sweep, node {k}: {err} of {}", d.amax());
         }
         // a damped step: chain solve vs dense solve
         let mut ch = Chain::new(nodes.len());

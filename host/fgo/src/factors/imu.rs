@@ -23,6 +23,9 @@ pub struct ImuFactor {
     pub node_j: usize,
     pub pim: Preintegrated,
     pub noise: Noise,
+    /// Variance scale of `noise` over the preintegrated covariance of `pim` (1 = the IMU
+    /// parameters as given; see [`crate::gating`], the IMU noise scale).
+    pub noise_scale: f64,
 }
 
 fn put(j: &mut DMatrix<f64>, r: usize, c: usize, m: &Matrix3<f64>) {
@@ -35,7 +38,13 @@ impl ImuFactor {
             return Err(FgoError::Input(format!("IMU factor {node_i}->{node_j} has no IMU samples")));
         }
         let noise = Noise::from_fixed(&pim.residual_cov())?;
-        Ok(Self { node_i, node_j, pim, noise })
+        Ok(Self { node_i, node_j, pim, noise, noise_scale: 1.0 })
+    }
+
+    /// Set the variance scale of the noise (relative to the parameters'), `s > 0`.
+    pub fn set_noise_scale(&mut self, s: f64) {
+        self.noise = self.noise.scaled(s / self.noise_scale);
+        self.noise_scale = s;
     }
 
     /// The residual alone (no Jacobians): what the LM's cost evaluations need.
@@ -116,6 +125,8 @@ pub struct BiasRandomWalkFactor {
     pub node_i: usize,
     pub node_j: usize,
     pub noise: Noise,
+    /// Variance scale of `noise` over the given random walk (see [`ImuFactor::noise_scale`]).
+    pub noise_scale: f64,
 }
 
 impl BiasRandomWalkFactor {
@@ -123,7 +134,13 @@ impl BiasRandomWalkFactor {
     pub fn new(node_i: usize, node_j: usize, acc_rw: f64, gyro_rw: f64, dt_s: f64) -> Result<Self, FgoError> {
         let sa = acc_rw * dt_s.sqrt();
         let sg = gyro_rw * dt_s.sqrt();
-        Ok(Self { node_i, node_j, noise: Noise::from_sigmas(&[sa, sa, sa, sg, sg, sg])? })
+        Ok(Self { node_i, node_j, noise: Noise::from_sigmas(&[sa, sa, sa, sg, sg, sg])?, noise_scale: 1.0 })
+    }
+
+    /// Set the variance scale of the noise (relative to the given random walk), `s > 0`.
+    pub fn set_noise_scale(&mut self, s: f64) {
+        self.noise = self.noise.scaled(s / self.noise_scale);
+        self.noise_scale = s;
     }
 
     pub fn evaluate(&self, xi: &NodeState, xj: &NodeState) -> Evaluation {

@@ -74,6 +74,16 @@ impl Factor {
         }
     }
 
+    /// Scale the noise of the IMU and bias random-walk factors to `s` times their nominal
+    /// variance (other factors are left alone).
+    pub fn set_imu_noise_scale(&mut self, s: f64) {
+        match self {
+            Factor::Imu(f) => f.set_noise_scale(s),
+            Factor::BiasRw(f) => f.set_noise_scale(s),
+            _ => {}
+        }
+    }
+
     /// Residual and Jacobians at `states` (one per entry of [`Factor::nodes`]).
     pub fn evaluate(&self, states: &[&NodeState]) -> Evaluation {
         match self {
