@@ -1,8 +1,9 @@
 """A Foxglove WebSocket protocol client (foxglove.websocket.v1) for the live-view tests.
 
 Connects to URL (retrying while the server starts), subscribes to every channel advertised,
-validates each message against its channel's JSON Schema (jsonschema) and prints one JSON
-summary line when the server closes the connection.
+validates each message against its channel's JSON Schema (jsonschema), looks for a JSON null
+anywhere in it (a NaN must be left out and named with why in `no_value`, never sent as null),
+and prints one JSON summary line when the server closes the connection.
 
   python foxglove_client.py read URL TIMEOUT_S   # read everything until the server closes
   python foxglove_client.py stall URL TIMEOUT_S  # subscribe to what is advertised in the first
@@ -27,6 +28,17 @@ from websockets.sync.client import connect
 # "foxglove.websocket.v1": JSON advertisements, binary message frames) "foxglove.sdk.v1".
 SUBPROTOCOL = "foxglove.sdk.v1"
 VALIDATE_PER_TOPIC = 200
+
+
+def null_paths(v, path=""):
+    """The paths of every null in a decoded JSON message."""
+    if v is None:
+        return [path]
+    if isinstance(v, dict):
+        return [p for k, x in v.items() for p in null_paths(x, f"{path}.{k}" if path else k)]
+    if isinstance(v, list):
+        return [p for i, x in enumerate(v) for p in null_paths(x, f"{path}.{i}")]
+    return []
 
 
 def open_ws(url, deadline, rcvbuf=None, subprotocol=SUBPROTOCOL):
@@ -56,6 +68,8 @@ def main():
     counts = {}
     validated = {}
     invalid = []
+    nulls = []  # "topic: path" of nulls found (the first few)
+    no_value = {}  # topic -> {why: messages}
     errors = []
     resubscribed = []  # channels refused as unknown right after their advertisement, subscribed again
     server = None
@@ -126,7 +140,14 @@ def main():
             if counts[topic] > VALIDATE_PER_TOPIC:
                 continue
             try:
-                ch["validator"].validate(json.loads(msg[13:]))
+                m = json.loads(msg[13:])
+                for p in null_paths(m)[: max(0, 10 - len(nulls))]:
+                    nulls.append(f"{topic}: {p}")
+                if isinstance(m, dict) and isinstance(m.get("no_value"), dict):
+                    whys = no_value.setdefault(topic, {})
+                    for why in set(m["no_value"].values()):
+                        whys[why] = whys.get(why, 0) + 1
+                ch["validator"].validate(m)
                 validated[topic] = validated.get(topic, 0) + 1
             except (jsonschema.ValidationError, ValueError) as e:
                 if len(invalid) < 10:
@@ -145,6 +166,8 @@ def main():
                 "counts": counts,
                 "validated": validated,
                 "invalid": invalid,
+                "nulls": nulls,
+                "no_value": no_value,
                 "errors": errors,
                 "resubscribed": resubscribed,
                 "closed_by_server": closed_by_server,

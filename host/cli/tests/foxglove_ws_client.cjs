@@ -7,7 +7,8 @@
 //   node foxglove_ws_client.cjs URL TIMEOUT_S
 //
 // Connects (retrying while the server starts), subscribes to every channel advertised, decodes
-// each message with the channel's encoding and validates it, and prints one JSON summary line
+// each message with the channel's encoding and validates it, looks for a JSON null anywhere in it
+// (a NaN must be left out and named with why in `no_value`), and prints one JSON summary line
 // (the same fields as foxglove_client.py) when the server closes the connection.
 "use strict";
 
@@ -24,6 +25,8 @@ const subs = new Map(); // subscription id -> channel id
 const counts = {};
 const validated = {};
 const invalid = [];
+const nulls = []; // "topic: path" of nulls found (the first few)
+const noValue = {}; // topic -> {why: messages}
 const errors = [];
 const resubscribed = [];
 let server = null;
@@ -32,6 +35,14 @@ let closedByServer = false;
 let done = false;
 const ajv = new Ajv({ strict: false, allErrors: false });
 const decoder = new TextDecoder();
+
+// The paths of every null in a decoded JSON message.
+function nullPaths(v, path = "") {
+  if (v === null) return [path];
+  if (Array.isArray(v)) return v.flatMap((x, i) => nullPaths(x, `${path}.${i}`));
+  if (typeof v === "object") return Object.entries(v).flatMap(([k, x]) => nullPaths(x, path ? `${path}.${k}` : k));
+  return [];
+}
 
 function finish() {
   if (done) return;
@@ -46,6 +57,8 @@ function finish() {
       counts,
       validated,
       invalid,
+      nulls,
+      no_value: noValue,
       errors,
       resubscribed,
       closed_by_server: closedByServer,
@@ -121,6 +134,11 @@ function connect() {
     } catch (e) {
       if (invalid.length < 10) invalid.push(`${ch.topic}: not JSON: ${e.message}`);
       return;
+    }
+    for (const p of nullPaths(msg)) if (nulls.length < 10) nulls.push(`${ch.topic}: ${p}`);
+    if (msg && typeof msg.no_value === "object" && msg.no_value !== null) {
+      const whys = (noValue[ch.topic] = noValue[ch.topic] || {});
+      for (const why of new Set(Object.values(msg.no_value))) whys[why] = (whys[why] || 0) + 1;
     }
     if (ch.validate(msg)) {
       validated[ch.topic] = (validated[ch.topic] || 0) + 1;

@@ -2,7 +2,8 @@
 
 Usage: mavlink_accuracy.py RECEIVED.jsonl SUMMARY.json TRUTH.csv BOOT_OFFSET_S SPEED
 RECEIVED: mavlink_autopilot.py's log; SUMMARY: `--mavlink-summary`; TRUTH: `--truth` (t_s,n_m,e_m,d_m,yaw_rad).
-The autopilot's clock is CLOCK_MONOTONIC - BOOT_OFFSET_S; the head's time 0 is at the summary's
+The autopilot's clock is CLOCK_MONOTONIC - BOOT_OFFSET_S, the companion's CLOCK_MONOTONIC; the
+stamps are in the summary's stamp_clock; the head's time 0 is at the summary's
 head_t0_companion_us; a native run at SPEED maps head time t to companion t0 + t / SPEED.
 Prints JSON: counts and rates per message, the horizontal error of VISION_POSITION_ESTIMATE
 (RMS, max, fraction with both axes within 3 sigma), the yaw error, the lag arrival - stamp.
@@ -37,12 +38,16 @@ for m in msgs:
 vpe = [m for m in msgs if m["mavpackettype"] == "VISION_POSITION_ESTIMATE"]
 span_s = (vpe[-1]["arrival_us"] - vpe[0]["arrival_us"]) * 1e-6 if len(vpe) > 1 else float("nan")
 errs, within, yaw_errs, lags = [], 0, [], []
-# Before TIMESYNC converges the bridge stamps in its own clock (and says so): seconds away from
-# the autopilot's. Those are counted, not scored.
-own_clock = [m for m in vpe if abs(m["arrival_us"] - m["usec"]) > 1e6]
-vpe = [m for m in vpe if abs(m["arrival_us"] - m["usec"]) <= 1e6]
+# Stamps in the companion's clock; with --mavlink-stamp-clock autopilot, before TIMESYNC converges
+# the bridge stamps in its own clock (and says so): seconds away from the autopilot's. Those are
+# counted, not scored.
+to_companion = 0.0 if s.get("stamp_clock", "Autopilot") == "Companion" else boot_us
+for m in msgs:
+    m["arrival_companion_us"] = m["arrival_us"] + boot_us
+own_clock = [m for m in vpe if abs(m["arrival_companion_us"] - m["usec"] - to_companion) > 1e6]
+vpe = [m for m in vpe if abs(m["arrival_companion_us"] - m["usec"] - to_companion) <= 1e6]
 for m in vpe:
-    t = (m["usec"] + boot_us - t0) * 1e-6 * speed
+    t = (m["usec"] + to_companion - t0) * 1e-6 * speed
     p, yaw = at(t)
     # The autopilot's frame: the head's unless it sent an origin (offsets applied by the caller).
     dn, de = m["x"] - p[0], m["y"] - p[1]
@@ -51,7 +56,7 @@ for m in vpe:
     errs.append(e)
     within += abs(dn) <= 3 * math.sqrt(c[0]) and abs(de) <= 3 * math.sqrt(c[6])
     yaw_errs.append(abs(math.remainder(m["yaw"] - yaw, 2 * math.pi)))
-    lags.append((m["arrival_us"] - m["usec"]) * 1e-3)
+    lags.append((m["arrival_companion_us"] - m["usec"] - to_companion) * 1e-3)
 lags.sort()
 out = {
     "messages": counts,

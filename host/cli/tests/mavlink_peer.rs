@@ -2,8 +2,10 @@
 //! (`mavlink_autopilot.py`, pymavlink from the peer venv, `SUBNAV_PEER_PYTHON`). Every message
 //! the peer received is checked against the simulator's truth: position (in the autopilot's
 //! re-based frame), velocity in NED and in the body frame, yaw within its reported sigma; the
-//! stamps after TIMESYNC are the solutions' times of validity in the autopilot's clock (on the
-//! head's 10-Hz grid, a link delay before their arrival); the GPS the peer sends at the surface
+//! bridge's TIMESYNC estimate of the autopilot's clock is the peer's; the stamps are the
+//! solutions' times of validity in the companion's clock (the one the bridge answers TIMESYNC
+//! with, which PX4 maps through its own TIMESYNC estimate; on the head's 10-Hz grid, a link delay
+//! before their arrival); the GPS the peer sends at the surface
 //! comes back in the head's solution, with `reset_counter` counting the head's position
 //! re-acquisition and the new origin; no velocity while the head has none it can vouch for
 //! (aligning, DVL lost), never zeros; bad input counted, a dead link survived.
@@ -107,12 +109,16 @@ fn a_native_dive_through_subnav_mavlink_into_a_pymavlink_autopilot() {
     let boot_us = (BOOT_OFFSET_S * 1e6) as i64;
     assert!((off_us + boot_us).abs() < 2_000, "timesync offset {off_us} us, the peer's is {}", -boot_us);
     let t0_us = s["head_t0_companion_us"].as_i64().unwrap();
+    // The stamps are in the companion's clock (the default `--mavlink-stamp-clock`).
+    assert_eq!(s["stamp_clock"], "Companion", "{s}");
+    assert_eq!(s["stamped_own_clock"], 0, "{s}");
 
     let msgs: Vec<Value> = std::fs::read_to_string(&rx).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     let of = |name: &'static str| msgs.iter().filter(move |m| m["mavpackettype"] == name);
     let traj = sc.trajectory();
-    // Dive time of an autopilot stamp: autopilot = companion - boot offset, companion = t0 + dive.
-    let dive_s = |stamp_us: f64| (stamp_us + boot_us as f64 - t0_us as f64) * 1e-6;
+    // Dive time of a stamp: companion = t0 + dive; the peer's arrival times are in its own clock,
+    // autopilot = companion - boot offset.
+    let dive_s = |stamp_us: f64| (stamp_us - t0_us as f64) * 1e-6;
 
     // Every pose: a time of validity on the head's 10-Hz grid, at least the link delay before
     // its arrival (an arrival stamp would be ~0 ms before; a loaded machine adds up to ~0.2 s).
@@ -124,7 +130,7 @@ fn a_native_dive_through_subnav_mavlink_into_a_pymavlink_autopilot() {
         let t = dive_s(stamp);
         let grid = (t * 10.0 - (t * 10.0).round()).abs() * 100.0;
         assert!(grid < 1.0, "stamp {stamp} is {grid:.2} ms off the head's grid (t = {t:.4} s)");
-        let lag_ms = (f(m, "arrival_us") - stamp) * 1e-3;
+        let lag_ms = (f(m, "arrival_us") + boot_us as f64 - stamp) * 1e-3;
         assert!((LINK_DELAY_MS - 1.0..LINK_DELAY_MS + 1000.0).contains(&lag_ms), "arrival - stamp {lag_ms:.1} ms at t = {t:.1} s");
         assert!(t >= 10.0, "a pose while aligning, at {t:.1} s");
         final_counter = final_counter.max(m["reset_counter"].as_u64().unwrap());

@@ -23,7 +23,7 @@ use subnav_wire::{Command, Downlink, NavMode, NavSolution, Uplink};
 
 use crate::clock::{HeadClock, TimeSync};
 use crate::endpoint::{Endpoint, Transport};
-use crate::mapping::{self, Geodetic, OdometryFrame, Velocity};
+use crate::mapping::{self, Geodetic, OdometryFrame, StampClock, Velocity};
 use crate::scan::{ScanStats, Scanner, encode_v2};
 
 /// Our component id by default: MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY (what ArduPilot and PX4
@@ -57,6 +57,8 @@ pub struct BridgeConfig {
     /// The head's NED origin, when known (a simulated head's scenario, or `--origin`).
     pub head_origin: Option<Geodetic>,
     pub odometry_frame: OdometryFrame,
+    /// The clock of the messages' time stamps (of validity).
+    pub stamp_clock: StampClock,
     pub send_vision_position: bool,
     pub send_vision_speed: bool,
     pub send_odometry: bool,
@@ -85,6 +87,7 @@ impl BridgeConfig {
             max_velocity_sigma_mps: 0.3,
             head_origin: None,
             odometry_frame: OdometryFrame::LocalFrd,
+            stamp_clock: StampClock::Companion,
             send_vision_position: true,
             send_vision_speed: true,
             send_odometry: true,
@@ -118,7 +121,10 @@ pub struct BridgeSummary {
     pub sent: BTreeMap<String, u64>,
     pub rate_hz: BTreeMap<String, f64>,
     pub send_errors: u64,
-    /// Solutions whose pose went out stamped in our own clock (TIMESYNC not converged yet).
+    /// The clock of the stamps (`--mavlink-stamp-clock`).
+    pub stamp_clock: StampClock,
+    /// With `--mavlink-stamp-clock autopilot`: solutions whose pose went out stamped in our own
+    /// clock (TIMESYNC not converged yet).
     pub stamped_own_clock: u64,
     /// Solutions not sent: the head aligning or not running, or non-finite.
     pub pose_withheld: u64,
@@ -160,7 +166,7 @@ impl BridgeSummary {
         let mut out = vec![
             format!("mavlink: {} for {:.1} s; sent {}", self.endpoint, self.duration_s, sent.join(", ")),
             format!(
-                "mavlink: latency validity->send median {:.2} ms, p95 {:.2} ms, max {:.2} ms; timesync {} (offset {:?} us, rtt {:?} us, {} replies, {} refused); {} stamped in our clock",
+                "mavlink: latency validity->send median {:.2} ms, p95 {:.2} ms, max {:.2} ms; timesync {} (offset {:?} us, rtt {:?} us, {} replies, {} refused); stamps in the {:?} clock ({} in ours before timesync)",
                 self.latency.median_us as f64 / 1e3,
                 self.latency.p95_us as f64 / 1e3,
                 self.latency.max_us as f64 / 1e3,
@@ -169,6 +175,7 @@ impl BridgeSummary {
                 self.timesync.rtt_us,
                 self.timesync.replies,
                 self.timesync.refused,
+                self.stamp_clock,
                 self.stamped_own_clock
             ),
             format!(
@@ -290,7 +297,7 @@ impl Bridge {
     pub fn start(cfg: BridgeConfig, head_clock: HeadClock) -> Result<Bridge> {
         crate::endpoint::check(&cfg.endpoint)?;
         let link = Transport::open(&cfg.endpoint)?;
-        let summary = BridgeSummary { endpoint: cfg.endpoint.to_string(), ..Default::default() };
+        let summary = BridgeSummary { endpoint: cfg.endpoint.to_string(), stamp_clock: cfg.stamp_clock, ..Default::default() };
         let state = State {
             cfg,
             head_clock,
@@ -388,8 +395,13 @@ impl Bridge {
             st.summary.pose_withheld += 1;
             return;
         };
-        let stamp = match st.summary.timesync.to_autopilot_us(valid_us) {
-            Some(t) => {
+        let to_autopilot = match st.cfg.stamp_clock {
+            StampClock::Companion => None,
+            StampClock::Autopilot => Some(st.summary.timesync.to_autopilot_us(valid_us)),
+        };
+        let stamp = match to_autopilot {
+            None => valid_us,
+            Some(Some(t)) => {
                 if !st.converged_said {
                     st.converged_said = true;
                     let o = st.summary.timesync.offset_us.unwrap_or(0);
@@ -397,7 +409,7 @@ impl Bridge {
                 }
                 t
             }
-            None => {
+            Some(None) => {
                 st.summary.stamped_own_clock += 1;
                 valid_us
             }

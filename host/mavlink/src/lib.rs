@@ -5,7 +5,8 @@
 //! - [`mapping`]: the head's solution as `VISION_POSITION_ESTIMATE`, `GLOBAL_VISION_POSITION_ESTIMATE`,
 //!   `VISION_SPEED_ESTIMATE` and `ODOMETRY` (frames, units, covariances; pure, unit-tested);
 //! - [`clock`]: head -> companion -> autopilot time (`TIMESYNC`), so every stamp is the
-//!   measurement's time of validity in the autopilot's clock;
+//!   measurement's time of validity, in our clock (which the autopilot maps with its own
+//!   TIMESYNC, as PX4 does) or, on request, in the autopilot's ([`StampClock`]);
 //! - [`scan`]: incoming frames with every rejected byte counted;
 //! - [`endpoint`]: `udpout:`, `udpin:`, `tcp:`, `serial:`;
 //! - [`bridge`]: the running bridge (send, receive, GPS and origin back, counters).
@@ -19,4 +20,4 @@ pub mod scan;
 pub use bridge::{Bridge, BridgeConfig, BridgeSummary, GpsInput};
 pub use clock::HeadClock;
 pub use endpoint::{Endpoint, parse_endpoint};
-pub use mapping::{Geodetic, OdometryFrame};
+pub use mapping::{Geodetic, OdometryFrame, StampClock};

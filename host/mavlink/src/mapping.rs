@@ -198,6 +198,21 @@ pub enum OdometryFrame {
     LocalNed,
 }
 
+/// The clock the messages' time stamps are in. Both hold the measurement's time of validity.
+/// - `companion` (default): our own clock, the one we answer the autopilot's `TIMESYNC` with.
+///   MAVLink's convention (the receiver maps a sender's stamps with its own TIMESYNC estimate):
+///   PX4 maps `time_usec`/`usec` through `Timesync::sync_stamp` (adds its offset, estimated from
+///   its TIMESYNC requests to us); ArduPilot's `JitterCorrection` takes any monotonic clock.
+/// - `autopilot`: already mapped to the autopilot's clock with our own TIMESYNC estimate (before
+///   it converges: our clock). Only for a receiver that neither runs TIMESYNC nor corrects
+///   jitter; PX4 would map such a stamp a second time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, Default)]
+pub enum StampClock {
+    #[default]
+    Companion,
+    Autopilot,
+}
+
 /// A solution as the autopilot's messages, positions in the output frame (`pos_out_ned_m`: the
 /// head's NED re-based to the autopilot's origin when it has one), stamped `t_remote_us`.
 pub struct Outgoing {

@@ -1,10 +1,16 @@
 //! `subnav attach` (built with `--features probe`): attach to a running board through a debug
 //! probe (probe-rs), stream its defmt logs from the RTT up-channel named `defmt` (and telemetry
 //! from an up-channel named `telemetry`, if the firmware has one), optionally the telemetry UART
-//! too (`--serial`), print them decoded and optionally record everything losslessly.
+//! too (`--serial`), print them decoded and optionally record everything losslessly; with
+//! `--foxglove` serve them live, with `--mavlink ENDPOINT` bridge the solution to an autopilot
+//! (the one path of `record`/`qemu`: [`super::mavlink::start_reading`] and
+//! [`super::mavlink::observe`]; nothing goes back to the head, so the autopilot's GPS is not
+//! taken).
 //!
-//! Tested here: it builds (CI builds the feature). Not tested: a real probe and board (none can
-//! be attached on the build machines).
+//! Tested here: it builds (CI builds the feature), its options parse (unit test, run with
+//! `--features probe`), and the shared path from a decoded link event to the autopilot is tested
+//! without a probe (`cli::mavlink` tests). Not tested: a real probe and board (none can be
+//! attached on the build machines).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -43,6 +49,9 @@ pub struct Args {
     pub duration_s: Option<f64>,
     #[command(flatten)]
     pub live: super::live::FoxgloveArgs,
+    /// The head's solution to an autopilot as it streams (the autopilot's GPS is not sent back).
+    #[command(flatten)]
+    pub mavlink: super::mavlink::MavlinkArgs,
 }
 
 /// Open the first probe and attach to `chip`.
@@ -70,6 +79,7 @@ pub fn stream_rtt(
     record: Option<&Path>,
     duration_s: Option<f64>,
     live: Option<&subnav_link::live_view::LiveView>,
+    bridge: Option<&std::sync::Arc<subnav_mavlink::Bridge>>,
     mut on_text: impl FnMut(&str),
 ) -> Result<LiveStatus> {
     let elf_bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
@@ -126,7 +136,7 @@ pub fn stream_rtt(
                         w.chunk_now(Stream::Uplink, &b)?;
                     }
                     dec.feed(&b, |e| {
-                        super::live::link_event(live, &e);
+                        super::mavlink::observe(live, bridge, &e);
                         status.see(&e);
                         if let subnav_link::LinkEvent::Message(m) = &e {
                             on_text(&print::text(m));
@@ -162,16 +172,50 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     }
     let serial = args.serial.clone().map(|s| (s, args.baud));
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
-    let status = stream_rtt(&args.chip, &args.elf, serial, args.record.as_deref(), args.duration_s, live.as_ref(), |line| {
+    let bridge = super::mavlink::start_reading(&args.mavlink, None)?;
+    let status = stream_rtt(&args.chip, &args.elf, serial, args.record.as_deref(), args.duration_s, live.as_ref(), bridge.as_ref(), |line| {
         if format == Format::Text {
             println!("{line}");
         }
     });
     super::live::finish(live);
+    super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let status = status?;
     match format {
         Format::Text => eprintln!("{}", status.line()),
         Format::Json => println!("{}", serde_json::json!({"type": "summary", "status": status})),
     }
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        attach: super::Args,
+    }
+
+    #[test]
+    fn attach_takes_the_mavlink_options_of_the_other_live_commands() {
+        let c = Cli::try_parse_from([
+            "attach",
+            "--chip",
+            "STM32F405RGTx",
+            "--elf",
+            "fw.elf",
+            "--mavlink",
+            "udpout:127.0.0.1:14550",
+            "--mavlink-system-id",
+            "2",
+            "--mavlink-odometry-frame",
+            "local-ned",
+        ])
+        .unwrap();
+        assert_eq!(c.attach.mavlink.mavlink.unwrap().to_string(), "udpout:127.0.0.1:14550");
+        assert_eq!(c.attach.mavlink.bridge.mavlink_system_id, 2);
+        assert!(Cli::try_parse_from(["attach", "--chip", "X", "--elf", "f", "--mavlink", "carrier-pigeon:1"]).is_err());
+    }
 }

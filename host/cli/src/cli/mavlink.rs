@@ -1,8 +1,10 @@
-//! `--mavlink ENDPOINT` (on `run`) and `subnav mavlink --from SOURCE --to ENDPOINT`: the head's
-//! solution to an autopilot over MAVLink 2 (`subnav_mavlink`), its GPS back to the head. One code
-//! path: the options here, [`start`] and [`finish`]; `subnav mavlink --from native` is `subnav run
-//! --native --mavlink`, a recording is replayed at its pace, a live head (TCP, serial) is read
-//! and its downlink written on the same connection.
+//! `--mavlink ENDPOINT` (on `run`, `qemu`, `record`, `attach`) and `subnav mavlink --from SOURCE
+//! --to ENDPOINT`: the head's solution to an autopilot over MAVLink 2 (`subnav_mavlink`), its GPS
+//! back to the head. One code path: the options here, [`start`] (or [`start_reading`] for the
+//! commands that only read the head's link: `record`, `qemu`, `attach`), [`observe`] for each
+//! link event and [`finish`]; `subnav mavlink --from native` is `subnav run --native --mavlink`,
+//! a recording is replayed at its pace, a live head (TCP, serial) is read and its downlink
+//! written on the same connection.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -10,7 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use subnav_mavlink::{Bridge, BridgeConfig, Endpoint, Geodetic, GpsInput, HeadClock, OdometryFrame};
+use subnav_mavlink::{Bridge, BridgeConfig, Endpoint, Geodetic, GpsInput, HeadClock, OdometryFrame, StampClock};
 use subnav_wire::Uplink;
 
 use super::Format;
@@ -36,6 +38,12 @@ pub struct BridgeOpts {
     /// ODOMETRY's pose frame: local-frd (what ArduPilot accepts) or local-ned (PX4: north-aligned).
     #[arg(long, value_enum, default_value_t = OdometryFrame::LocalFrd)]
     pub mavlink_odometry_frame: OdometryFrame,
+    /// The clock of the time stamps (each the measurement's time of validity): companion (ours,
+    /// the one we answer TIMESYNC with; PX4 maps it with its own TIMESYNC, ArduPilot's jitter
+    /// correction takes any clock) or autopilot (mapped by our TIMESYNC estimate; PX4 would map
+    /// it twice).
+    #[arg(long, value_enum, default_value_t = StampClock::Companion)]
+    pub mavlink_stamp_clock: StampClock,
     /// Messages to send (comma-separated): vision-position, vision-speed, odometry,
     /// global-vision-position. ArduSub: pick one position form (e.g. vision-position,vision-speed).
     #[arg(long, value_delimiter = ',', default_value = "vision-position,vision-speed,odometry,global-vision-position")]
@@ -91,6 +99,7 @@ pub fn start(
     cfg.max_velocity_sigma_mps = o.mavlink_max_velocity_sigma_mps as f32;
     cfg.head_origin = o.mavlink_origin.or(scenario_origin);
     cfg.odometry_frame = o.mavlink_odometry_frame;
+    cfg.stamp_clock = o.mavlink_stamp_clock;
     let has = |k| o.mavlink_messages.contains(&k);
     cfg.send_vision_position = has(MessageKind::VisionPosition);
     cfg.send_vision_speed = has(MessageKind::VisionSpeed);
@@ -100,6 +109,24 @@ pub fn start(
     let b = Bridge::start(cfg, clock).with_context(|| format!("starting the MAVLink bridge to {e}"))?;
     eprintln!("mavlink: bridging to {e} (system {}, component {})", o.mavlink_system_id, o.mavlink_component_id);
     Ok(Some(Arc::new(b)))
+}
+
+/// The bridge of a command that only reads the head's link (`record`, `qemu`, `attach`): nothing
+/// goes back to the head, so the autopilot's GPS is not taken.
+pub fn start_reading(args: &MavlinkArgs, origin: Option<Geodetic>) -> Result<Option<Arc<Bridge>>> {
+    let bridge = start(args.mavlink.as_ref(), &args.bridge, origin, HeadClock::estimated(10.0))?;
+    if let Some(b) = &bridge {
+        b.set_gps_input(GpsInput::Off);
+    }
+    Ok(bridge)
+}
+
+/// What a live command does with each event of the head's link: the viewer and the autopilot.
+pub fn observe(live: Option<&subnav_link::live_view::LiveView>, bridge: Option<&Arc<Bridge>>, e: &subnav_link::LinkEvent) {
+    super::live::link_event(live, e);
+    if let subnav_link::LinkEvent::Message(m) = e {
+        on_uplink(bridge, m);
+    }
 }
 
 /// Stop the bridge, print its summary (stderr) and write it where asked.
@@ -276,5 +303,67 @@ fn live(mut link: Box<dyn std::io::Read + Send>, mut write: Box<dyn std::io::Wri
 pub fn on_uplink(bridge: Option<&Arc<Bridge>>, m: &Uplink) {
     if let Some(b) = bridge {
         b.on_uplink(m);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+    use subnav_wire::{NavMode, NavSolution};
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        mavlink: MavlinkArgs,
+    }
+
+    /// The path `record`, `qemu` and `attach` share, from the head's bytes to the autopilot:
+    /// the options parsed as on those commands, [`start_reading`], the link decoded and each event
+    /// given to [`observe`], as `attach` does with what it reads over RTT.
+    #[test]
+    fn a_decoded_link_event_reaches_the_autopilot_through_the_shared_path() {
+        let autopilot = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        autopilot.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+        let port = autopilot.local_addr().unwrap().port();
+        let to = format!("udpout:127.0.0.1:{port}");
+        let cli = Cli::try_parse_from(["attach", "--mavlink", to.as_str(), "--mavlink-messages", "vision-position"]).unwrap();
+        let bridge = start_reading(&cli.mavlink, None).unwrap().expect("a bridge");
+        let nav = NavSolution {
+            t_us: 20_000_000,
+            mode: NavMode::Aided,
+            pos_ned_m: [12.0, -3.0, 4.0],
+            vel_ned_mps: [0.5, 0.0, 0.0],
+            att_nb_wxyz: [1.0, 0.0, 0.0, 0.0],
+            sigma_pos_m: [0.5, 0.5, 0.05],
+            sigma_vel_mps: [0.02; 3],
+            sigma_att_rad: [0.01; 3],
+            cov_ne_m2: 0.0,
+        };
+        let mut buf = [0u8; subnav_wire::MAX_UPLINK_FRAME];
+        let frame = subnav_wire::encode(&Uplink::Nav(nav), &mut buf).unwrap().to_vec();
+        let mut dec = subnav_link::UplinkDecoder::new();
+        let mut events = 0;
+        dec.feed(&frame, |e| {
+            events += 1;
+            observe(None, Some(&bridge), &e)
+        });
+        assert_eq!(events, 1);
+        // The autopilot receives a MAVLink 2 VISION_POSITION_ESTIMATE (id 102) with the position.
+        let started = Instant::now();
+        let mut got = None;
+        let mut b = [0u8; 512];
+        while got.is_none() && started.elapsed() < Duration::from_secs(5) {
+            let Ok(n) = autopilot.recv(&mut b) else { continue };
+            let f = &b[..n];
+            if n > 12 && f[0] == 0xFD && u32::from_le_bytes([f[7], f[8], f[9], 0]) == 102 {
+                // Payload: usec (u64), then x, y, z (f32).
+                let x = f32::from_le_bytes(f[18..22].try_into().unwrap());
+                got = Some(x);
+            }
+        }
+        assert_eq!(got, Some(12.0), "no VISION_POSITION_ESTIMATE at the autopilot");
+        let s = bridge.finish();
+        assert_eq!(s.sent.get("VISION_POSITION_ESTIMATE"), Some(&1), "{s:?}");
     }
 }

@@ -71,11 +71,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     // With the simulated sensors, the viewer also gets the truth.
     let feed = live.as_ref().filter(|_| !args.no_sensors).map(|l| super::live::SimFeed::new(l, &scenario));
     let origin = if args.no_sensors { None } else { super::mavlink::scenario_origin(&scenario) };
-    let bridge =
-        super::mavlink::start(args.mavlink.mavlink.as_ref(), &args.mavlink.bridge, origin, subnav_mavlink::HeadClock::estimated(10.0))?;
-    if let Some(b) = &bridge {
-        b.set_gps_input(subnav_mavlink::GpsInput::Off);
-    }
+    let bridge = super::mavlink::start_reading(&args.mavlink, origin)?;
     let outcome = qemu::run_with_bus(&cfg, bus, |event, _| match event {
         QemuEvent::Link(e) => {
             if let subnav_link::LinkEvent::Message(m) = &e {

@@ -148,11 +148,7 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
     }
     let mut reader = source.open()?;
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
-    let bridge =
-        super::mavlink::start(args.mavlink.mavlink.as_ref(), &args.mavlink.bridge, None, subnav_mavlink::HeadClock::estimated(10.0))?;
-    if let Some(b) = &bridge {
-        b.set_gps_input(subnav_mavlink::GpsInput::Off);
-    }
+    let bridge = super::mavlink::start_reading(&args.mavlink, None)?;
     // Under a temporary name until the first data arrives: a source that fails or closes at
     // once leaves an old recording at --out untouched.
     let mut w = Writer::create_atomic(&args.out, &meta)?;
@@ -174,10 +170,7 @@ pub fn run(mut args: Args, format: Format) -> Result<ExitCode> {
         }
         let was_first = dec.stats().frames_ok == 0;
         dec.feed(bytes, |e| {
-            super::live::link_event(live.as_ref(), &e);
-            if let LinkEvent::Message(m) = &e {
-                super::mavlink::on_uplink(bridge.as_ref(), m);
-            }
+            super::mavlink::observe(live.as_ref(), bridge.as_ref(), &e);
             status.see(&e)
         });
         status.link = dec.stats();
@@ -232,8 +225,10 @@ fn finish(args: &Args, status: &LiveStatus, format: Format) {
 fn record_rtt(args: &Args, chip: &str, format: Format) -> Result<ExitCode> {
     let Some(elf) = &args.elf else { bail!("--chip needs --elf (the RTT control block is found through the ELF's symbols)") };
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
-    let status = super::attach::stream_rtt(chip, elf, None, Some(&args.out), args.duration_s, live.as_ref(), |_| {});
+    let bridge = super::mavlink::start_reading(&args.mavlink, None)?;
+    let status = super::attach::stream_rtt(chip, elf, None, Some(&args.out), args.duration_s, live.as_ref(), bridge.as_ref(), |_| {});
     super::live::finish(live);
+    super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let status = status?;
     finish(args, &status, format);
     Ok(ExitCode::SUCCESS)

@@ -2,13 +2,18 @@
 //! that Foxglove knows every field, and the JSON form of each message (the serde form of the
 //! wire type plus `host_t_us`). Foxglove's well-known `foxglove.PoseInFrame` and `foxglove.Log`
 //! are given in their published JSON Schema form, so Foxglove's 3D and Log panels take them.
+//!
+//! A value that is not a number (yet) is never sent as JSON `null` to Foxglove: [`omit_unknown`]
+//! leaves the field out and names it in the message's `no_value` object with why (`"aligning"`,
+//! `"no fix"`, ...), so a panel plots a gap, not a zero or a parse error. The schemas say so: the
+//! numeric fields are numbers, not required. The CSV export keeps the serde form (empty cells).
 
 use serde_json::{Value, json};
 use subnav_wire::{RawSample, Uplink};
 
 fn num() -> Value {
-    // f32 NaN ("no value yet") serialises as null.
-    json!({"type": ["number", "null"]})
+    // A NaN ("no value yet") is left out of the Foxglove form and named in `no_value`.
+    json!({"type": "number"})
 }
 fn int() -> Value {
     json!({"type": "integer"})
@@ -30,7 +35,7 @@ fn aid_status() -> Value {
         ("last_fused_us", int()),
     ];
     let props: serde_json::Map<String, Value> = fields.iter().map(|(k, v)| ((*k).to_string(), v.clone())).collect();
-    let required: Vec<&str> = fields.iter().map(|(k, _)| *k).collect();
+    let required: Vec<&str> = fields.iter().filter(|(_, v)| !may_be_omitted(v)).map(|(k, _)| *k).collect();
     json!({"type": "object", "properties": props, "required": required})
 }
 /// Every aid source's status, by name (`subnav_wire::AidStatuses`).
@@ -45,8 +50,90 @@ fn obj(title: &str, fields: &[(&str, Value)]) -> Value {
     for (k, v) in fields {
         props.insert((*k).into(), v.clone());
     }
-    let required: Vec<&str> = props.keys().map(|k| k.as_str()).collect();
+    let required: Vec<String> = props.iter().filter(|(_, v)| !may_be_omitted(v)).map(|(k, _)| k.clone()).collect();
+    props.insert("no_value".into(), no_value_schema());
     json!({"$schema": "http://json-schema.org/draft-07/schema#", "title": title, "type": "object", "properties": props, "required": required})
+}
+
+/// Whether [`omit_unknown`] may leave a field with this schema out: numbers, arrays of numbers and
+/// free-form values (which may hold a `None`).
+pub fn may_be_omitted(s: &Value) -> bool {
+    let number = |t: &Value| t == "number";
+    number(&s["type"]) || (s["type"] == "array" && number(&s["items"]["type"])) || (s.get("type").is_none() && s.get("oneOf").is_none())
+}
+
+/// The `no_value` field: each field left out of the message (dotted path) and why.
+pub fn no_value_schema() -> Value {
+    json!({"type": "object", "description": "Fields left out because they have no value, and why (e.g. \"aligning\")",
+           "additionalProperties": {"type": "string"}, "minProperties": 1})
+}
+
+/// Takes every `null` (a NaN, or a `None`) out of `v`: an object's null field, or an array field
+/// with a null element, is removed, and if any was, `v` gets `no_value: {path: why(path)}`. Objects
+/// nested in objects and arrays are searched too (paths `aid.dvl.nis`, `entities.0.x`).
+pub fn omit_unknown(v: &mut Value, why: impl Fn(&str) -> &'static str) {
+    let mut gone = Vec::new();
+    take_nulls("", v, &mut gone);
+    if let (false, Value::Object(o)) = (gone.is_empty(), v) {
+        o.insert("no_value".into(), Value::Object(gone.into_iter().map(|p| { let w = why(&p); (p, json!(w)) }).collect()));
+    }
+}
+
+fn take_nulls(prefix: &str, v: &mut Value, gone: &mut Vec<String>) {
+    let path = |k: &str| if prefix.is_empty() { k.to_string() } else { format!("{prefix}.{k}") };
+    match v {
+        Value::Object(o) => {
+            let keys: Vec<String> = o.keys().cloned().collect();
+            for k in keys {
+                let drop = match &o[&k] {
+                    Value::Null => true,
+                    Value::Array(a) => a.iter().any(Value::is_null),
+                    _ => false,
+                };
+                if drop {
+                    o.remove(&k);
+                    gone.push(path(&k));
+                } else if let Some(x) = o.get_mut(&k) {
+                    take_nulls(&path(&k), x, gone);
+                }
+            }
+        }
+        Value::Array(a) => {
+            for (i, x) in a.iter_mut().enumerate() {
+                take_nulls(&path(&i.to_string()), x, gone);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// Why a field of a navigation solution in this mode has no value.
+pub fn nav_why(mode: subnav_wire::NavMode) -> &'static str {
+    match mode {
+        subnav_wire::NavMode::Uninitialised => "uninitialised",
+        subnav_wire::NavMode::Aligning => "aligning",
+        _ => "not finite",
+    }
+}
+
+/// Why field `path` of an uplink message has no value.
+pub fn uplink_why(m: &Uplink, path: &str) -> &'static str {
+    match m {
+        Uplink::Nav(n) => nav_why(n.mode),
+        Uplink::Compass(c) if c.heading_rad.is_none() => "no fix",
+        Uplink::Health(_) if path.starts_with("aid.") => "not measured yet",
+        Uplink::Raw(RawSample::Dvl(_)) if path == "covariance_m2ps2" => "not reported by the DVL",
+        Uplink::Raw(RawSample::Dvl(d)) if !d.valid => "DVL invalid",
+        Uplink::Boot(_) | Uplink::Record(_) | Uplink::Ack(_) => "none",
+        _ => "not finite",
+    }
+}
+
+/// The Foxglove form of an uplink message: [`message_json`] without nulls ([`omit_unknown`]).
+pub fn foxglove_json(m: &Uplink, t_host_us: u64) -> Value {
+    let mut v = message_json(m, t_host_us);
+    omit_unknown(&mut v, |p| uplink_why(m, p));
+    v
 }
 /// A serde externally tagged enum: a variant name, or `{variant: {...}}` for variants with data.
 fn tagged(variants: &[&str]) -> Value {
@@ -103,7 +190,7 @@ pub fn for_kind(kind: &str) -> Option<(String, Value)> {
                 ("vel_dvl_mps", arr(3)),
                 ("fom_mps", num()),
                 ("altitude_m", num()),
-                ("covariance_m2ps2", json!({"type": ["array", "null"], "items": num(), "minItems": 9, "maxItems": 9})),
+                ("covariance_m2ps2", arr(9)),
             ],
         ),
         "compass" => obj(

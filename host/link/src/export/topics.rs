@@ -19,6 +19,10 @@
 //! | `/subnav/link/corrupt` | `subnav.CorruptFrame` | corrupt uplink frames, with the error |
 //! | `/subnav/map` | `foxglove.SceneUpdate` | the topological map's nodes and the accepted loop closures (runs with the map in the loop) |
 //!
+//! No message carries a JSON `null`: a value that is not a number yet (NaN while aligning, no
+//! fix, an aid not measured yet) is left out and named with why in the message's `no_value`
+//! ([`schema::omit_unknown`]); a pose that is not a number is not published.
+//!
 //! Frame `ned`: x north, y east, z down, metres; the pose's orientation is the body->NED
 //! quaternion. Foxglove's well-known schemas are given in their JSON Schema form with the fields
 //! subnav fills.
@@ -27,7 +31,7 @@ use serde_json::{Value, json};
 use subnav_wire::{NavMode, NavSolution, Uplink};
 
 use super::TimeBase;
-use super::schema::{self, foxglove_level, message_json, stamp};
+use super::schema::{self, foxglove_json, foxglove_level, nav_why, no_value_schema, omit_unknown, stamp};
 
 pub const POSE: &str = "/subnav/pose";
 pub const COVARIANCE: &str = "/subnav/pose/covariance";
@@ -129,7 +133,7 @@ pub fn yaw_rad(att_nb_wxyz: [f32; 4]) -> f64 {
 fn wrap_deg(x: f64) -> f64 {
     (x + 180.0).rem_euclid(360.0) - 180.0
 }
-/// A finite number, or JSON null (a NaN "no value yet").
+/// A finite number, or JSON null (a NaN "no value yet"), which [`omit_unknown`] then takes out.
 fn num(x: f64) -> Value {
     if x.is_finite() { json!(x) } else { Value::Null }
 }
@@ -170,7 +174,12 @@ impl Projector {
         let t = self.t(t_host_us);
         let push =
             |out: &mut Vec<Msg>, topic: &str, json: Value| out.push(Msg { topic: topic.to_string(), t_us: t, publish_us: t_host_us, json });
-        push(out, &uplink_topic(m.kind()), message_json(m, t_host_us));
+        // A derived message without nulls: each left-out field and why.
+        let push_omitting = |out: &mut Vec<Msg>, topic: &str, mut json: Value, why: &dyn Fn(&str) -> &'static str| {
+            omit_unknown(&mut json, why);
+            push(out, topic, json)
+        };
+        push(out, &uplink_topic(m.kind()), foxglove_json(m, t_host_us));
         match m {
             Uplink::Nav(n) => {
                 self.last_nav = Some(*n);
@@ -178,13 +187,16 @@ impl Projector {
                 let pose = json!({"position": {"x": n.pos_ned_m[0], "y": n.pos_ned_m[1], "z": n.pos_ned_m[2]},
                                   "orientation": {"x": x, "y": y, "z": z, "w": w}});
                 // A pose only once it is a number (Foxglove's schema has no "no value").
-                if n.pos_ned_m.iter().chain(&n.att_nb_wxyz).all(|v| v.is_finite()) {
+                let pose_known = n.pos_ned_m.iter().chain(&n.att_nb_wxyz).all(|v| v.is_finite());
+                if pose_known {
                     push(out, POSE, json!({"timestamp": stamp(t), "frame_id": FRAME, "pose": pose.clone()}));
                 }
+                let pose = if pose_known { pose } else { Value::Null };
+                let why = |_: &str| nav_why(n.mode);
                 let [sn, se, sd] = n.sigma_pos_m.map(f);
                 let cne = f(n.cov_ne_m2);
                 let cov = [sn * sn, cne, 0.0, cne, se * se, 0.0, 0.0, 0.0, sd * sd];
-                push(
+                push_omitting(
                     out,
                     COVARIANCE,
                     json!({
@@ -195,14 +207,21 @@ impl Projector {
                         "sigma_heading_deg": num(f(n.sigma_att_rad[2]).to_degrees()),
                         "sigma_att_deg": n.sigma_att_rad.map(|s| num(f(s).to_degrees())),
                     }),
+                    &why,
                 );
                 self.trajectory_point(t, n, out, t_host_us);
             }
             Uplink::Compass(c) => {
                 if let Some(h) = c.heading_rad {
                     let nav = self.last_nav.map(|n| yaw_rad(n.att_nb_wxyz).to_degrees());
+                    let nav_mode = self.last_nav.map(|n| n.mode);
                     let h_deg = f(h).to_degrees().rem_euclid(360.0);
-                    push(
+                    let why = |p: &str| match (p, nav_mode) {
+                        ("nav_heading_deg" | "innovation_deg", None) => "no solution yet",
+                        ("nav_heading_deg" | "innovation_deg", Some(mode)) => nav_why(mode),
+                        _ => "not finite",
+                    };
+                    push_omitting(
                         out,
                         COMPASS_FIX,
                         json!({
@@ -211,6 +230,7 @@ impl Projector {
                             "innovation_deg": nav.map_or(Value::Null, |x| num(wrap_deg(h_deg - x))),
                             "units_used": c.units_used,
                         }),
+                        &why,
                     );
                 }
             }
@@ -224,7 +244,7 @@ impl Projector {
                                "fused_count": a.fused_count, "refused_count": a.refused_count, "resets": a.resets}),
                     );
                 }
-                push(
+                push_omitting(
                     out,
                     HEALTH_SUMMARY,
                     json!({
@@ -233,6 +253,7 @@ impl Projector {
                         "gate_rejects": h.gate_rejects, "pd_repairs": h.pd_repairs, "cov_unrepairable": h.cov_unrepairable,
                         "nonfinite_rejects": h.nonfinite_rejects, "cpu_load_permille": h.cpu_load_permille,
                     }),
+                    &|p: &str| if p.starts_with("aid.") { "not measured yet" } else { "not finite" },
                 );
             }
             Uplink::Fault(x) => {
@@ -309,13 +330,14 @@ impl Projector {
         let Some(n) = self.last_nav else { return };
         let [sn, se, _] = n.sigma_pos_m.map(f);
         let (en, ee) = (f(n.pos_ned_m[0]) - pos_ned_m[0], f(n.pos_ned_m[1]) - pos_ned_m[1]);
-        let json = json!({
+        let mut json = json!({
             "timestamp": stamp(t), "nav_t_us": n.t_us, "mode": format!("{:?}", n.mode),
             "heading_error_deg": num(wrap_deg(yaw_rad(n.att_nb_wxyz).to_degrees() - yaw_rad_true.to_degrees())),
             "sigma_heading_deg": num(f(n.sigma_att_rad[2]).to_degrees()),
             "horizontal_error_m": num((en * en + ee * ee).sqrt()), "sigma_horizontal_m": num((sn * sn + se * se).sqrt()),
             "depth_error_m": num(f(n.pos_ned_m[2]) - pos_ned_m[2]),
         });
+        omit_unknown(&mut json, |_| nav_why(n.mode));
         out.push(Msg { topic: TRUTH_ERROR.into(), t_us: t, publish_us: t_host_us, json });
     }
 
@@ -341,12 +363,20 @@ impl Projector {
     }
 }
 
-fn base(title: &str, props: Value) -> Value {
-    let required: Vec<String> = props.as_object().map(|o| o.keys().cloned().collect()).unwrap_or_default();
+/// A message schema: every field required but those [`omit_unknown`] may leave out (numbers and
+/// the `pose` of a solution that is not a number yet), plus `no_value`.
+fn base(title: &str, mut props: Value) -> Value {
+    let required: Vec<String> = props
+        .as_object()
+        .map(|o| o.iter().filter(|(k, v)| *k != "pose" && !schema::may_be_omitted(v)).map(|(k, _)| k.clone()).collect())
+        .unwrap_or_default();
+    if let Some(o) = props.as_object_mut() {
+        o.insert("no_value".into(), no_value_schema());
+    }
     json!({"$schema": "http://json-schema.org/draft-07/schema#", "title": title, "type": "object", "properties": props, "required": required})
 }
 fn n() -> Value {
-    json!({"type": ["number", "null"]})
+    json!({"type": "number"})
 }
 fn narr(k: usize) -> Value {
     json!({"type": "array", "items": n(), "minItems": k, "maxItems": k})
@@ -482,5 +512,96 @@ mod tests {
         assert!((e.json["horizontal_error_m"].as_f64().unwrap() - 0.5).abs() < 1e-6);
         assert!((e.json["heading_error_deg"].as_f64().unwrap() + 0.1f64.to_degrees()).abs() < 1e-4);
         assert_eq!(p.trajectory_history().unwrap().json["entities"][0]["lines"][0]["points"].as_array().unwrap().len(), 25);
+    }
+
+    fn has_null(v: &Value) -> bool {
+        match v {
+            Value::Null => true,
+            Value::Array(a) => a.iter().any(has_null),
+            Value::Object(o) => o.values().any(has_null),
+            _ => false,
+        }
+    }
+
+    #[test]
+    fn while_aligning_no_message_has_a_null_and_each_left_out_field_says_why() {
+        let nan = f32::NAN;
+        let aligning = NavSolution {
+            t_us: 1_000,
+            mode: NavMode::Aligning,
+            pos_ned_m: [nan; 3],
+            vel_ned_mps: [nan; 3],
+            att_nb_wxyz: [nan; 4],
+            sigma_pos_m: [nan; 3],
+            sigma_vel_mps: [nan; 3],
+            sigma_att_rad: [nan; 3],
+            cov_ne_m2: nan,
+        };
+        let compass = subnav_wire::CompassReport {
+            t_us: 1_000,
+            heading_rad: Some(0.5),
+            sigma_heading_rad: 0.01,
+            sun_rel_azimuth_rad: nan,
+            sun_elevation_rad: 0.3,
+            no_fix_reason: 0,
+            units_used: 4,
+        };
+        let no_fix = subnav_wire::CompassReport { heading_rad: None, sigma_heading_rad: nan, no_fix_reason: 3, ..compass };
+        let health = subnav_wire::FilterHealth {
+            t_us: 1_000,
+            aid: subnav_wire::AidStatuses { depth: subnav_wire::AidStatus { nis: nan, ..Default::default() }, ..Default::default() },
+            imu_q_scale: 1.0,
+            lambda: nan,
+            q_diag: [1e-6; 5],
+            pd_repairs: 0,
+            cov_unrepairable: 0,
+            gate_rejects: 0,
+            nonfinite_rejects: 0,
+            late_fused: 0,
+            late_refused: 0,
+            heading_resets: 0,
+            position_resets: 0,
+            cpu_load_permille: 0,
+        };
+        let mut p = Projector::new(TimeBase::Sensor);
+        let mut out = Vec::new();
+        for m in [Uplink::Nav(aligning), Uplink::Compass(compass), Uplink::Compass(no_fix), Uplink::Health(health)] {
+            p.uplink(1, &m, &mut out);
+        }
+        p.truth(2, 1_000, [0.0; 3], 0.0, &mut out);
+        for m in &out {
+            assert!(!has_null(&m.json), "{}: {}", m.topic, m.json);
+            // Every field is in the schema, every required one is there.
+            let (_, s) = schema_of(&m.topic).unwrap();
+            for k in m.json.as_object().unwrap().keys() {
+                assert!(s["properties"].get(k).is_some(), "{}: {k} not in its schema", m.topic);
+            }
+            for k in s["required"].as_array().into_iter().flatten() {
+                assert!(m.json.get(k.as_str().unwrap()).is_some(), "{}: {k} missing: {}", m.topic, m.json);
+            }
+        }
+        let on = |t: &str| out.iter().find(|m| m.topic == t).unwrap_or_else(|| panic!("no {t}")).json.clone();
+        // No pose while aligning; the solution's numbers left out, each saying "aligning".
+        assert!(out.iter().all(|m| m.topic != POSE));
+        let nav = on("/subnav/nav");
+        assert_eq!(nav["mode"], "Aligning");
+        assert!(nav.get("pos_ned_m").is_none());
+        for k in ["pos_ned_m", "vel_ned_mps", "att_nb_wxyz", "sigma_pos_m", "cov_ne_m2"] {
+            assert_eq!(nav["no_value"][k], "aligning", "{nav}");
+        }
+        assert_eq!(on(COVARIANCE)["no_value"]["pose"], "aligning");
+        assert_eq!(on(TRUTH_ERROR)["no_value"]["horizontal_error_m"], "aligning");
+        let fix = on(COMPASS_FIX);
+        assert_eq!(fix["heading_deg"].as_f64().unwrap().round(), 29.0);
+        assert_eq!(fix["no_value"]["innovation_deg"], "aligning");
+        let compass: Vec<Value> = out.iter().filter(|m| m.topic == "/subnav/compass").map(|m| m.json.clone()).collect();
+        assert_eq!(compass[0]["no_value"]["sun_rel_azimuth_rad"], "not finite");
+        assert_eq!(compass[1]["no_value"]["heading_rad"], "no fix");
+        assert_eq!(compass[1]["no_fix_reason"], 3);
+        assert_eq!(on("/subnav/health")["no_value"]["lambda"], "not finite");
+        assert_eq!(on("/subnav/health")["no_value"]["aid.depth.nis"], "not measured yet");
+        assert_eq!(on(HEALTH_SUMMARY)["no_value"]["aid.depth.nis"], "not measured yet");
+        // The CSV form keeps the serde form (an empty cell).
+        assert!(schema::message_json(&Uplink::Nav(aligning), 1)["pos_ned_m"][0].is_null());
     }
 }
