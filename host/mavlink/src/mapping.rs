@@ -223,9 +223,12 @@ pub struct Outgoing {
 }
 
 /// Build the messages of one solution. `global` says whether the output frame is the
-/// autopilot's origin (then GLOBAL_VISION_POSITION_ESTIMATE goes out too). ODOMETRY goes out
-/// only with a usable velocity (its velocity fields have no "unknown" that both autopilots
-/// honour); the position messages go out whenever the pose is usable.
+/// autopilot's origin (then GLOBAL_VISION_POSITION_ESTIMATE goes out too). The position
+/// messages go out whenever the pose is usable. ODOMETRY: with a usable velocity always;
+/// without one only in `local-ned` (PX4), its velocity NaN: PX4's `handle_message_odometry`
+/// takes the pose and skips a velocity that is not all finite, while ArduPilot's
+/// `handle_odometry` (the `local-frd` frame) would rotate a NaN velocity into its EKF, so there
+/// ODOMETRY is left out.
 pub fn outgoing(
     n: &NavSolution,
     pos_out_ned_m: [f32; 3],
@@ -260,8 +263,13 @@ pub fn outgoing(
         covariance: velocity_covariance_ned(n),
         reset_counter,
     });
-    let odometry = usable.then(|| {
-        let v_b = body_frd_of(n.att_nb_wxyz, n.vel_ned_mps.map(f64::from));
+    let pose_only = !usable && odometry_frame == OdometryFrame::LocalNed;
+    let odometry = (usable || pose_only).then(|| {
+        let v_b = if usable { body_frd_of(n.att_nb_wxyz, n.vel_ned_mps.map(f64::from)) } else { [f64::NAN; 3] };
+        let mut velocity_covariance = velocity_covariance_body(n);
+        if !usable {
+            velocity_covariance = [f32::NAN; 21];
+        }
         mav::ODOMETRY_DATA {
             time_usec: t_remote_us,
             x,
@@ -275,7 +283,7 @@ pub fn outgoing(
             pitchspeed: f32::NAN,
             yawspeed: f32::NAN,
             pose_covariance: covariance,
-            velocity_covariance: velocity_covariance_body(n),
+            velocity_covariance,
             frame_id: match odometry_frame {
                 OdometryFrame::LocalFrd => mav::MavFrame::MAV_FRAME_LOCAL_FRD,
                 OdometryFrame::LocalNed => mav::MavFrame::MAV_FRAME_LOCAL_NED,
@@ -383,6 +391,14 @@ mod tests {
         n.mode = NavMode::Aided;
         n.sigma_vel_mps = [f32::NAN, 0.0, 0.0];
         assert_eq!(velocity_usable(&n, 0.1), Velocity::TooUncertain);
+        // PX4's frame: the pose still goes out in ODOMETRY, its velocity NaN (never zeros).
+        let out = outgoing(&n, n.pos_ned_m, 5, 0, Velocity::TooUncertain, false, OdometryFrame::LocalNed);
+        let o = out.odometry.expect("pose-only ODOMETRY for PX4");
+        assert!(o.vx.is_nan() && o.vy.is_nan() && o.vz.is_nan() && o.velocity_covariance[0].is_nan());
+        assert_eq!((o.x, o.y), (10.0, -5.0));
+        assert!(out.vision_speed.is_none());
+        let out = outgoing(&n, n.pos_ned_m, 5, 0, Velocity::Usable, false, OdometryFrame::LocalNed);
+        assert!(out.odometry.unwrap().vx.is_finite());
     }
 
     #[test]
