@@ -173,11 +173,12 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let serial = args.serial.clone().map(|s| (s, args.baud));
     let live = super::live::start(&args.live, subnav_link::export::TimeBase::Host)?;
     let bridge = super::mavlink::start_reading(&args.mavlink, None)?;
-    let status = stream_rtt(&args.chip, &args.elf, serial, args.record.as_deref(), args.duration_s, live.as_ref(), bridge.as_ref(), |line| {
-        if format == Format::Text {
-            println!("{line}");
-        }
-    });
+    let status =
+        stream_rtt(&args.chip, &args.elf, serial, args.record.as_deref(), args.duration_s, live.as_ref(), bridge.as_ref(), |line| {
+            if format == Format::Text {
+                println!("{line}");
+            }
+        });
     super::live::finish(live);
     super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let status = status?;

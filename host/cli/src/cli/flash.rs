@@ -34,6 +34,9 @@ pub struct Args {
     /// With --attach: stop after this many seconds.
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// With --attach: the head's solution to an autopilot (see `subnav attach --help`).
+    #[command(flatten)]
+    pub mavlink: super::mavlink::MavlinkArgs,
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
@@ -73,6 +76,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             record: args.record,
             duration_s: args.duration_s,
             live: Default::default(),
+            mavlink: args.mavlink,
         };
         return super::attach::run(a, format);
     }

@@ -75,7 +75,17 @@ pub fn omit_unknown(v: &mut Value, why: impl Fn(&str) -> &'static str) {
     let mut gone = Vec::new();
     take_nulls("", v, &mut gone);
     if let (false, Value::Object(o)) = (gone.is_empty(), v) {
-        o.insert("no_value".into(), Value::Object(gone.into_iter().map(|p| { let w = why(&p); (p, json!(w)) }).collect()));
+        o.insert(
+            "no_value".into(),
+            Value::Object(
+                gone.into_iter()
+                    .map(|p| {
+                        let w = why(&p);
+                        (p, json!(w))
+                    })
+                    .collect(),
+            ),
+        );
     }
 }
 
