@@ -61,7 +61,9 @@ use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats};
-use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
+use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
+use subnav_firmware::sensors::SensorSuite;
+use subnav_firmware::{App, TelemetrySink};
 use subnav_wire::{Board, FaultKind, FaultSource, ResetCause};
 
 const HSE_HZ: u32 = 8_000_000;
@@ -177,18 +179,6 @@ impl embedded_io::Write for DvlUart {
     }
 }
 
-/// New losses of a receive queue as faults (queue full or UART overrun: `Overrun`; framing,
-/// noise, parity: `Malformed`).
-fn report_rx_losses(app: &mut App, t_us: u64, stats: &RxStats, source: FaultSource, sink: &mut impl TelemetrySink) {
-    let lost = stats.take_new();
-    if lost.overrun > 0 {
-        app.board_fault(t_us, source, FaultKind::Overrun, sink);
-    }
-    if lost.framing > 0 {
-        app.board_fault(t_us, source, FaultKind::Malformed, sink);
-    }
-}
-
 #[exception]
 fn SysTick() {
     MILLIS.fetch_add(1, Ordering::Relaxed);
@@ -279,7 +269,7 @@ fn main() -> ! {
         defmt::panic!("downlink queue taken twice");
     };
     let (producer, downlink_consumer) = downlink_queue.split();
-    let mut downlink = RxConsumer::new(downlink_consumer);
+    let downlink = RxConsumer::new(downlink_consumer);
     cortex_m::interrupt::free(|cs| DOWNLINK_RX.borrow(cs).replace(Some(RxProducer::new(producer, &DOWNLINK_STATS))));
     rx.listen();
 
@@ -341,7 +331,7 @@ fn main() -> ! {
     let Ok(imu_dev) = ExclusiveDevice::new(spi, cs, CycleDelay);
     let i2c = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
     let mut delay = CycleDelay;
-    let mut suite = HeadSuite::new(
+    let suite = HeadSuite::new(
         HalSpi(imu_dev),
         core::array::from_fn(|_| HalI2c(RefCellDevice::new(&i2c))),
         HalI2c(RefCellDevice::new(&i2c)),
@@ -355,50 +345,93 @@ fn main() -> ! {
         suite.init.polarization.map(|p| p.is_none()),
         suite.init.depth.is_none()
     );
-    let mut next_tick_us = clock.now_us();
-    let mut next_stack_report_us = 60_000_000u64;
-
-    let mut window_start_us = clock.now_us();
-    let mut busy_us: u64 = 0;
+    let mut board = Stm32Board {
+        clock,
+        downlink,
+        suite,
+        store,
+        warm: warm.as_mut_slice(),
+        watchdog,
+        sink,
+        losses: 0,
+        next_stack_report_us: 60_000_000,
+    };
+    // Real time: after a stall the loop goes on at the current tick (no burst of late ticks).
+    let mut board_loop = BoardLoop::new(CatchUp::SkipAhead);
     loop {
-        let wake_us = clock.now_us();
-        let mut buf = [0u8; 64];
-        loop {
-            let n = downlink.drain(&mut buf);
-            match buf.get(..n) {
-                Some(bytes) if !bytes.is_empty() => app.on_downlink_bytes(wake_us, bytes, &mut sink),
-                _ => break,
-            }
-        }
-        report_rx_losses(&mut app, wake_us, &DOWNLINK_STATS, FaultSource::Link, &mut sink);
-        report_rx_losses(&mut app, wake_us, &DVL_STATS, FaultSource::Dvl, &mut sink);
-        // Sensors on the 1 ms grid (catching up without bursts after a long iteration).
-        if wake_us >= next_tick_us {
-            app.sensor_tick(wake_us, &mut suite, &mut sink);
-            app.service_store(wake_us, store, &mut sink);
-            app.service_warm_record(wake_us, warm.as_mut_slice());
-            next_tick_us = (next_tick_us + 1000).max(wake_us.saturating_sub(wake_us % 1000));
-        }
-        if wake_us >= next_stack_report_us {
-            let size = cortex_m_stack::stack_size();
-            defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", size.saturating_sub(cortex_m_stack::stack_painted()), size);
-            next_stack_report_us += 60_000_000;
-        }
-        if app.poll(wake_us, &mut sink) == BoardRequest::Reboot {
-            cortex_m::peripheral::SCB::sys_reset();
-        }
-        // The record's writes are done before the loop can stop (the next reset reads them).
-        core::sync::atomic::compiler_fence(Ordering::SeqCst);
-        watchdog.feed();
-        let done_us = clock.now_us();
-        busy_us += done_us.saturating_sub(wake_us);
-        let window = done_us.saturating_sub(window_start_us);
-        if window >= 1_000_000 {
-            app.set_cpu_load(u16::try_from(busy_us * 1000 / window).unwrap_or(1000));
-            window_start_us = done_us;
-            busy_us = 0;
-        }
+        board_loop.pass(&mut app, &mut board);
         // Wake on the 1 kHz tick (or a received byte; the queues hold them until the next pass).
         cortex_m::asm::wfi();
+    }
+}
+
+/// The board as the board loop sees it.
+struct Stm32Board<'a, S, TX> {
+    clock: Clock,
+    downlink: RxConsumer<'static>,
+    suite: S,
+    store: &'a mut dyn RecordStore,
+    warm: &'a mut [u8],
+    watchdog: IndependentWatchdog,
+    sink: UartSink<TX>,
+    /// Losses of the receive queues taken at the start of the tick, one bit per (queue, kind):
+    /// see [`LOSSES`].
+    losses: u8,
+    next_stack_report_us: u64,
+}
+
+/// The receive queues' losses as faults, in the order of the `losses` bits: queue full or UART
+/// overrun is `Overrun`; framing, noise, parity is `Malformed`.
+const LOSSES: [(FaultSource, FaultKind); 4] = [
+    (FaultSource::Link, FaultKind::Overrun),
+    (FaultSource::Link, FaultKind::Malformed),
+    (FaultSource::Dvl, FaultKind::Overrun),
+    (FaultSource::Dvl, FaultKind::Malformed),
+];
+
+impl<S: SensorSuite, TX: embedded_hal_nb::serial::Write<u8>> BoardIo for Stm32Board<'_, S, TX> {
+    type Sensors = S;
+    type Sink = UartSink<TX>;
+
+    fn now_us(&mut self) -> u64 {
+        self.clock.now_us()
+    }
+
+    fn begin_tick(&mut self, _t_us: u64) {
+        let (link, dvl) = (DOWNLINK_STATS.take_new(), DVL_STATS.take_new());
+        let new = [link.overrun > 0, link.framing > 0, dvl.overrun > 0, dvl.framing > 0];
+        self.losses = new.iter().enumerate().fold(0, |m, (k, &on)| if on { m | (1 << k) } else { m });
+    }
+
+    fn read_downlink(&mut self, _t_us: u64, buf: &mut [u8]) -> usize {
+        self.downlink.drain(buf)
+    }
+
+    fn take_fault(&mut self) -> Option<(FaultSource, FaultKind)> {
+        let k = self.losses.trailing_zeros() as usize;
+        let loss = LOSSES.get(k).copied()?;
+        self.losses &= !(1 << k);
+        Some(loss)
+    }
+
+    fn parts(&mut self) -> BoardParts<'_, S, UartSink<TX>> {
+        BoardParts { sensors: Some(&mut self.suite), store: &mut *self.store, warm: Some(&mut *self.warm), sink: &mut self.sink }
+    }
+
+    /// The stack's peak over defmt, every 60 s.
+    fn end_tick(&mut self, t_us: u64, _app: &App) {
+        if t_us >= self.next_stack_report_us {
+            let size = cortex_m_stack::stack_size();
+            defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", size.saturating_sub(cortex_m_stack::stack_painted()), size);
+            self.next_stack_report_us += 60_000_000;
+        }
+    }
+
+    fn feed_watchdog(&mut self) {
+        self.watchdog.feed();
+    }
+
+    fn reboot(&mut self) {
+        cortex_m::peripheral::SCB::sys_reset();
     }
 }
