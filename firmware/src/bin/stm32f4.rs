@@ -3,8 +3,10 @@
 //! - telemetry and commands on USART2 (PA2 TX, PA3 RX) at 460800 baud; received bytes go from
 //!   the RXNE interrupt into a 1-KiB queue (`subnav_firmware::uart_queue`: 22 ms of a
 //!   back-to-back downlink), drained by the board loop; losses (queue full, UART overrun,
-//!   framing) are reported as `Fault(Link, Overrun | Malformed)`. Telemetry is still written
-//!   byte by byte from the loop (blocking; a transmit queue is not built yet);
+//!   framing) are reported as `Fault(Link, Overrun | Malformed)`. Telemetry goes into a 2-KiB
+//!   transmit queue sent by the TXE interrupt (`uart_queue::TxProducer`): the loop never waits
+//!   for the wire; a frame that does not fit is refused whole and reported
+//!   (`Fault(Link, TelemetryDropped)`);
 //! - defmt logs over RTT (probe-rs), panics through panic-probe;
 //! - time from SysTick at 1 kHz plus the sub-tick counter;
 //! - sensors (the same drivers and `HeadSuite` as the QEMU board, only the buses differ): the
@@ -60,7 +62,7 @@ use subnav_firmware::hal_bus::{HalBusError, HalI2c, HalSpi};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::time::TickClock;
-use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats};
+use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats, TxConsumer, TxProducer, TxStats};
 use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
 use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::{App, TelemetrySink};
@@ -106,6 +108,30 @@ static DVL_STATS: RxStats = RxStats::new();
 static DOWNLINK_RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
 static DVL_RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
 
+/// Transmit queue of the telemetry: 2 KiB (44 ms of USART2 at 460,800 baud, several ticks'
+/// worth of the largest bursts); the TXE interrupt sends it.
+const TELEMETRY_QUEUE: usize = 2048;
+static TELEMETRY_STATS: TxStats = TxStats::new();
+static TELEMETRY_TX: Mutex<RefCell<Option<TxConsumer<'static>>>> = Mutex::new(RefCell::new(None));
+
+/// Send the next queued telemetry byte when the data register is empty; with nothing queued,
+/// stop the transmit interrupt (the loop enables it again when it queues a frame).
+fn service_tx(usart: &pac::usart1::RegisterBlock, tx: &Mutex<RefCell<Option<TxConsumer<'static>>>>) {
+    cortex_m::interrupt::free(|cs| {
+        if usart.cr1().read().txeie().bit_is_clear() || usart.sr().read().txe().bit_is_clear() {
+            return;
+        }
+        match tx.borrow(cs).borrow_mut().as_mut().and_then(TxConsumer::next_byte) {
+            Some(b) => {
+                usart.dr().write(|w| unsafe { w.dr().bits(u16::from(b)) });
+            }
+            None => {
+                usart.cr1().modify(|_, w| w.txeie().clear_bit());
+            }
+        }
+    });
+}
+
 /// Move every received byte (and error flag) of a USART into its queue.
 fn service_rx(usart: &pac::usart1::RegisterBlock, rx: &Mutex<RefCell<Option<RxProducer<'static>>>>) {
     cortex_m::interrupt::free(|cs| {
@@ -139,6 +165,9 @@ fn USART2() {
     // SAFETY: read-only access to the status and data registers; the loop never reads them
     // (its `Rx` half is unused once the interrupt is enabled).
     service_rx(unsafe { &*pac::USART2::ptr() }, &DOWNLINK_RX);
+    // SAFETY: the data register's write and CR1's TXEIE bit; the loop only sets TXEIE, inside a
+    // critical section (`QueuedSink`).
+    service_tx(unsafe { &*pac::USART2::ptr() }, &TELEMETRY_TX);
 }
 
 #[interrupt]
@@ -213,16 +242,21 @@ impl embedded_hal::delay::DelayNs for CycleDelay {
     }
 }
 
-struct UartSink<TX>(TX);
+/// Telemetry into the transmit queue (whole frames or refused: counted by the application and
+/// reported as `Fault(Link, TelemetryDropped)`), sent by USART2's TXE interrupt.
+struct QueuedSink(TxProducer<'static>);
 
-impl<TX: embedded_hal_nb::serial::Write<u8>> TelemetrySink for UartSink<TX> {
+impl TelemetrySink for QueuedSink {
     fn write_frame(&mut self, frame: &[u8]) -> bool {
-        for &b in frame {
-            if nb::block!(self.0.write(b)).is_err() {
-                return false;
-            }
+        let queued = self.0.write_frame(frame);
+        if queued {
+            cortex_m::interrupt::free(|_| {
+                // SAFETY: sets TXEIE only (read-modify-write inside a critical section, so the
+                // interrupt's own clearing of it cannot interleave).
+                unsafe { &*pac::USART2::ptr() }.cr1().modify(|_, w| w.txeie().set_bit());
+            });
         }
-        true
+        queued
     }
 }
 
@@ -263,8 +297,14 @@ fn main() -> ! {
             Ok(s) => s,
             Err(_) => defmt::panic!("USART2 configuration rejected"),
         };
-    let (tx, mut rx) = serial.split();
-    let mut sink = UartSink(tx);
+    // The `Tx` half stays unused: the TXE interrupt writes the data register.
+    let (_tx, mut rx) = serial.split();
+    let Some(telemetry_queue) = cortex_m::singleton!(: Queue<u8, TELEMETRY_QUEUE> = Queue::new()) else {
+        defmt::panic!("telemetry queue taken twice");
+    };
+    let (telemetry_producer, telemetry_consumer) = telemetry_queue.split();
+    cortex_m::interrupt::free(|cs| TELEMETRY_TX.borrow(cs).replace(Some(TxConsumer::new(telemetry_consumer))));
+    let mut sink = QueuedSink(TxProducer::new(telemetry_producer, &TELEMETRY_STATS));
     let Some(downlink_queue) = cortex_m::singleton!(: Queue<u8, DOWNLINK_QUEUE> = Queue::new()) else {
         defmt::panic!("downlink queue taken twice");
     };
@@ -366,14 +406,14 @@ fn main() -> ! {
 }
 
 /// The board as the board loop sees it.
-struct Stm32Board<'a, S, TX> {
+struct Stm32Board<'a, S> {
     clock: Clock,
     downlink: RxConsumer<'static>,
     suite: S,
     store: &'a mut dyn RecordStore,
     warm: &'a mut [u8],
     watchdog: IndependentWatchdog,
-    sink: UartSink<TX>,
+    sink: QueuedSink,
     /// Losses of the receive queues taken at the start of the tick, one bit per (queue, kind):
     /// see [`LOSSES`].
     losses: u8,
@@ -389,9 +429,9 @@ const LOSSES: [(FaultSource, FaultKind); 4] = [
     (FaultSource::Dvl, FaultKind::Malformed),
 ];
 
-impl<S: SensorSuite, TX: embedded_hal_nb::serial::Write<u8>> BoardIo for Stm32Board<'_, S, TX> {
+impl<S: SensorSuite> BoardIo for Stm32Board<'_, S> {
     type Sensors = S;
-    type Sink = UartSink<TX>;
+    type Sink = QueuedSink;
 
     fn now_us(&mut self) -> u64 {
         self.clock.now_us()
@@ -414,7 +454,7 @@ impl<S: SensorSuite, TX: embedded_hal_nb::serial::Write<u8>> BoardIo for Stm32Bo
         Some(loss)
     }
 
-    fn parts(&mut self) -> BoardParts<'_, S, UartSink<TX>> {
+    fn parts(&mut self) -> BoardParts<'_, S, QueuedSink> {
         BoardParts { sensors: Some(&mut self.suite), store: &mut *self.store, warm: Some(&mut *self.warm), sink: &mut self.sink }
     }
 
@@ -431,7 +471,13 @@ impl<S: SensorSuite, TX: embedded_hal_nb::serial::Write<u8>> BoardIo for Stm32Bo
         self.watchdog.feed();
     }
 
+    /// After the queued telemetry (the reboot's `Ack` among it) is sent, at most 100 ms.
     fn reboot(&mut self) {
+        let deadline_us = self.clock.now_us() + 100_000;
+        while self.sink.0.pending() && self.clock.now_us() < deadline_us {}
+        // The last byte leaves the shift register (22 µs at 460,800 baud).
+        let end_us = self.clock.now_us() + 100;
+        while self.clock.now_us() < end_us {}
         cortex_m::peripheral::SCB::sys_reset();
     }
 }
