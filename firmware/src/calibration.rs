@@ -14,7 +14,7 @@ use subnav_core::head;
 use subnav_core::nav::dvl::DvlMounting;
 use subnav_wire::{DvlMountingRecord, ImuCalibration, ImuSample, PolarizationCalibration, Record, Refusal, RunConfigRecord};
 
-use crate::app::AppConfig;
+use crate::config::AppConfig;
 
 const DEG: f32 = core::f32::consts::PI / 180.0;
 

@@ -7,8 +7,10 @@
 #![forbid(unsafe_code)]
 
 pub mod app;
+pub mod board_loop;
 pub mod bus_bridge;
 pub mod calibration;
+pub mod config;
 pub mod drivers;
 pub mod estimator;
 pub mod hal_bus;
@@ -23,7 +25,8 @@ pub mod uart_queue;
 #[cfg(test)]
 mod error_tests;
 
-pub use app::{App, AppConfig};
+pub use app::App;
+pub use config::AppConfig;
 pub use telemetry::{Telemetry, TelemetrySink};
 
 /// Firmware version reported in the boot message.

@@ -1,4 +1,5 @@
-//! Interrupt-fed UART receive queues (the STM32 board's downlink and DVL).
+//! Interrupt-fed UART receive queues (the STM32 board's downlink and DVL), and the transmit
+//! queue its telemetry goes through ([`TxProducer`], [`TxConsumer`]).
 //!
 //! Why: a UART's receive register holds one byte. Polled from the board loop on the 1-kHz tick,
 //! a 460,800-baud downlink delivers 46 bytes per millisecond and all but the last are
@@ -13,6 +14,12 @@
 //!
 //! The consumer implements `embedded_io::Read` + `ReadReady`, so the DVL driver reads from the
 //! queue exactly as from a UART.
+//!
+//! Transmit: the board loop writes whole telemetry frames into a queue (a frame that does not
+//! fit is refused whole, so the link never carries half a frame; the application counts it and
+//! reports `Fault(Link, TelemetryDropped)`), and the UART's transmit-empty interrupt sends it a
+//! byte at a time. Writing a frame never waits for the wire, so a burst of telemetry no longer
+//! stalls the sensor schedule.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -166,6 +173,76 @@ impl embedded_io::ReadReady for RxConsumer<'_> {
     }
 }
 
+/// Counters of a transmit queue (frames refused because the queue was full; all wrap).
+#[derive(Debug, Default)]
+pub struct TxStats {
+    frames: AtomicU32,
+    refused: AtomicU32,
+}
+
+impl TxStats {
+    pub const fn new() -> Self {
+        Self { frames: AtomicU32::new(0), refused: AtomicU32::new(0) }
+    }
+
+    /// Frames queued and frames refused (queue full) since boot.
+    pub fn counts(&self) -> (u32, u32) {
+        (self.frames.load(Ordering::Relaxed), self.refused.load(Ordering::Relaxed))
+    }
+}
+
+/// The board loop's end of a transmit queue: a telemetry sink that takes whole frames.
+pub struct TxProducer<'a> {
+    queue: Producer<'a, u8>,
+    stats: &'a TxStats,
+}
+
+impl<'a> TxProducer<'a> {
+    pub fn new(queue: Producer<'a, u8>, stats: &'a TxStats) -> Self {
+        Self { queue, stats }
+    }
+
+    /// Whether anything is waiting to be sent (the board then enables its transmit interrupt).
+    pub fn pending(&self) -> bool {
+        self.queue.len() > 0
+    }
+}
+
+impl crate::TelemetrySink for TxProducer<'_> {
+    fn write_frame(&mut self, frame: &[u8]) -> bool {
+        // Only the interrupt dequeues, so the free space can only grow after this check.
+        if self.queue.capacity() - self.queue.len() < frame.len() {
+            self.stats.refused.fetch_add(1, Ordering::Relaxed);
+            return false;
+        }
+        for &b in frame {
+            if self.queue.enqueue(b).is_err() {
+                // Unreachable after the check above; counted rather than trusted.
+                self.stats.refused.fetch_add(1, Ordering::Relaxed);
+                return false;
+            }
+        }
+        self.stats.frames.fetch_add(1, Ordering::Relaxed);
+        true
+    }
+}
+
+/// The transmit interrupt's end of the queue.
+pub struct TxConsumer<'a> {
+    queue: Consumer<'a, u8>,
+}
+
+impl<'a> TxConsumer<'a> {
+    pub fn new(queue: Consumer<'a, u8>) -> Self {
+        Self { queue }
+    }
+
+    /// The next byte for the data register (`None`: the queue is empty, disable the interrupt).
+    pub fn next_byte(&mut self) -> Option<u8> {
+        self.queue.dequeue()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -253,5 +330,69 @@ mod tests {
         assert_eq!(&buf, b"$DV");
         assert_eq!(rx.read(&mut buf), Ok(1));
         assert_eq!(rx.read(&mut buf), Ok(0));
+    }
+
+    /// A telemetry burst larger than the transmit queue, the UART sending 46 bytes per ms: the
+    /// loop never waits; whole frames are queued or refused (counted by the queue and by the
+    /// application, which reports the drop), and every frame on the wire decodes.
+    #[test]
+    fn a_burst_fills_the_transmit_queue_and_what_does_not_fit_is_refused_whole_and_reported() {
+        use crate::App;
+        use subnav_wire::{Board, Decoded, FaultKind, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
+        let mut queue: Queue<u8, 512> = Queue::new();
+        let stats = TxStats::new();
+        let (p, c) = queue.split();
+        let (mut tx, mut isr) = (TxProducer::new(p, &stats), TxConsumer::new(c));
+        let mut app = App::new(Board::Stm32F405);
+        app.boot(0, &mut tx);
+        let mut wire = std::vec::Vec::new();
+        // 3 s of telemetry at 10 Hz navigation, the UART draining 46 bytes per ms; then a
+        // burst of 100 commands' acks (1 KB) in one tick with the UART stopped.
+        for ms in 0..3_000u64 {
+            app.poll(ms * 1000, &mut tx);
+            for _ in 0..46 {
+                match isr.next_byte() {
+                    Some(b) => wire.push(b),
+                    None => break,
+                }
+            }
+        }
+        let (frames_ok, refused_before) = stats.counts();
+        assert_eq!(refused_before, 0, "at full rate nothing is refused");
+        let mut bytes = std::vec::Vec::new();
+        for seq in 1..=100u16 {
+            let mut buf = [0u8; subnav_wire::MAX_DOWNLINK_FRAME];
+            let cmd = Downlink { seq, command: Command::SetConfig(subnav_wire::ConfigItem::StreamRaw(true)) };
+            bytes.extend_from_slice(encode(&cmd, &mut buf).expect("encodes"));
+        }
+        app.on_downlink_bytes(3_000_000, &bytes, &mut tx);
+        let (frames_after, refused) = stats.counts();
+        assert!(refused > 0 && frames_after > frames_ok, "some acks fit, the rest are refused: {frames_after} {refused}");
+        // The UART catches up; the next poll reports the drop (its fault frame fits again).
+        for ms in 3_001..3_200u64 {
+            while let Some(b) = isr.next_byte() {
+                wire.push(b);
+            }
+            app.poll(ms * 1000, &mut tx);
+        }
+        while let Some(b) = isr.next_byte() {
+            wire.push(b);
+        }
+        let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
+        let msgs: std::vec::Vec<Uplink> = wire
+            .iter()
+            .filter_map(|b| match dec.push::<Uplink>(*b) {
+                Decoded::Message(m) => Some(m),
+                Decoded::Corrupt(e) => panic!("a frame on the wire is damaged: {e}"),
+                Decoded::Pending => None,
+            })
+            .collect();
+        let acks = msgs.iter().filter(|m| matches!(m, Uplink::Ack(_))).count() as u32;
+        assert_eq!(acks + refused, 100, "every ack is on the wire or counted as refused");
+        let dropped = msgs.iter().find_map(|m| match m {
+            Uplink::Fault(f) if f.kind == FaultKind::TelemetryDropped => Some(f.count),
+            _ => None,
+        });
+        assert_eq!(dropped, Some(refused), "the drop is reported with its count");
     }
 }

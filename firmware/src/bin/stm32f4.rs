@@ -3,8 +3,10 @@
 //! - telemetry and commands on USART2 (PA2 TX, PA3 RX) at 460800 baud; received bytes go from
 //!   the RXNE interrupt into a 1-KiB queue (`subnav_firmware::uart_queue`: 22 ms of a
 //!   back-to-back downlink), drained by the board loop; losses (queue full, UART overrun,
-//!   framing) are reported as `Fault(Link, Overrun | Malformed)`. Telemetry is still written
-//!   byte by byte from the loop (blocking; a transmit queue is not built yet);
+//!   framing) are reported as `Fault(Link, Overrun | Malformed)`. Telemetry goes into a 2-KiB
+//!   transmit queue sent by the TXE interrupt (`uart_queue::TxProducer`): the loop never waits
+//!   for the wire; a frame that does not fit is refused whole and reported
+//!   (`Fault(Link, TelemetryDropped)`);
 //! - defmt logs over RTT (probe-rs), panics through panic-probe;
 //! - time from SysTick at 1 kHz plus the sub-tick counter;
 //! - sensors (the same drivers and `HeadSuite` as the QEMU board, only the buses differ): the
@@ -60,8 +62,10 @@ use subnav_firmware::hal_bus::{HalBusError, HalI2c, HalSpi};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::time::TickClock;
-use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats};
-use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
+use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats, TxConsumer, TxProducer, TxStats};
+use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
+use subnav_firmware::sensors::SensorSuite;
+use subnav_firmware::{App, TelemetrySink};
 use subnav_wire::{Board, FaultKind, FaultSource, ResetCause};
 
 const HSE_HZ: u32 = 8_000_000;
@@ -104,6 +108,30 @@ static DVL_STATS: RxStats = RxStats::new();
 static DOWNLINK_RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
 static DVL_RX: Mutex<RefCell<Option<RxProducer<'static>>>> = Mutex::new(RefCell::new(None));
 
+/// Transmit queue of the telemetry: 2 KiB (44 ms of USART2 at 460,800 baud, several ticks'
+/// worth of the largest bursts); the TXE interrupt sends it.
+const TELEMETRY_QUEUE: usize = 2048;
+static TELEMETRY_STATS: TxStats = TxStats::new();
+static TELEMETRY_TX: Mutex<RefCell<Option<TxConsumer<'static>>>> = Mutex::new(RefCell::new(None));
+
+/// Send the next queued telemetry byte when the data register is empty; with nothing queued,
+/// stop the transmit interrupt (the loop enables it again when it queues a frame).
+fn service_tx(usart: &pac::usart1::RegisterBlock, tx: &Mutex<RefCell<Option<TxConsumer<'static>>>>) {
+    cortex_m::interrupt::free(|cs| {
+        if usart.cr1().read().txeie().bit_is_clear() || usart.sr().read().txe().bit_is_clear() {
+            return;
+        }
+        match tx.borrow(cs).borrow_mut().as_mut().and_then(TxConsumer::next_byte) {
+            Some(b) => {
+                usart.dr().write(|w| unsafe { w.dr().bits(u16::from(b)) });
+            }
+            None => {
+                usart.cr1().modify(|_, w| w.txeie().clear_bit());
+            }
+        }
+    });
+}
+
 /// Move every received byte (and error flag) of a USART into its queue.
 fn service_rx(usart: &pac::usart1::RegisterBlock, rx: &Mutex<RefCell<Option<RxProducer<'static>>>>) {
     cortex_m::interrupt::free(|cs| {
@@ -137,6 +165,9 @@ fn USART2() {
     // SAFETY: read-only access to the status and data registers; the loop never reads them
     // (its `Rx` half is unused once the interrupt is enabled).
     service_rx(unsafe { &*pac::USART2::ptr() }, &DOWNLINK_RX);
+    // SAFETY: the data register's write and CR1's TXEIE bit; the loop only sets TXEIE, inside a
+    // critical section (`QueuedSink`).
+    service_tx(unsafe { &*pac::USART2::ptr() }, &TELEMETRY_TX);
 }
 
 #[interrupt]
@@ -177,18 +208,6 @@ impl embedded_io::Write for DvlUart {
     }
 }
 
-/// New losses of a receive queue as faults (queue full or UART overrun: `Overrun`; framing,
-/// noise, parity: `Malformed`).
-fn report_rx_losses(app: &mut App, t_us: u64, stats: &RxStats, source: FaultSource, sink: &mut impl TelemetrySink) {
-    let lost = stats.take_new();
-    if lost.overrun > 0 {
-        app.board_fault(t_us, source, FaultKind::Overrun, sink);
-    }
-    if lost.framing > 0 {
-        app.board_fault(t_us, source, FaultKind::Malformed, sink);
-    }
-}
-
 #[exception]
 fn SysTick() {
     MILLIS.fetch_add(1, Ordering::Relaxed);
@@ -223,16 +242,21 @@ impl embedded_hal::delay::DelayNs for CycleDelay {
     }
 }
 
-struct UartSink<TX>(TX);
+/// Telemetry into the transmit queue (whole frames or refused: counted by the application and
+/// reported as `Fault(Link, TelemetryDropped)`), sent by USART2's TXE interrupt.
+struct QueuedSink(TxProducer<'static>);
 
-impl<TX: embedded_hal_nb::serial::Write<u8>> TelemetrySink for UartSink<TX> {
+impl TelemetrySink for QueuedSink {
     fn write_frame(&mut self, frame: &[u8]) -> bool {
-        for &b in frame {
-            if nb::block!(self.0.write(b)).is_err() {
-                return false;
-            }
+        let queued = self.0.write_frame(frame);
+        if queued {
+            cortex_m::interrupt::free(|_| {
+                // SAFETY: sets TXEIE only (read-modify-write inside a critical section, so the
+                // interrupt's own clearing of it cannot interleave).
+                unsafe { &*pac::USART2::ptr() }.cr1().modify(|_, w| w.txeie().set_bit());
+            });
         }
-        true
+        queued
     }
 }
 
@@ -273,13 +297,19 @@ fn main() -> ! {
             Ok(s) => s,
             Err(_) => defmt::panic!("USART2 configuration rejected"),
         };
-    let (tx, mut rx) = serial.split();
-    let mut sink = UartSink(tx);
+    // The `Tx` half stays unused: the TXE interrupt writes the data register.
+    let (_tx, mut rx) = serial.split();
+    let Some(telemetry_queue) = cortex_m::singleton!(: Queue<u8, TELEMETRY_QUEUE> = Queue::new()) else {
+        defmt::panic!("telemetry queue taken twice");
+    };
+    let (telemetry_producer, telemetry_consumer) = telemetry_queue.split();
+    cortex_m::interrupt::free(|cs| TELEMETRY_TX.borrow(cs).replace(Some(TxConsumer::new(telemetry_consumer))));
+    let mut sink = QueuedSink(TxProducer::new(telemetry_producer, &TELEMETRY_STATS));
     let Some(downlink_queue) = cortex_m::singleton!(: Queue<u8, DOWNLINK_QUEUE> = Queue::new()) else {
         defmt::panic!("downlink queue taken twice");
     };
     let (producer, downlink_consumer) = downlink_queue.split();
-    let mut downlink = RxConsumer::new(downlink_consumer);
+    let downlink = RxConsumer::new(downlink_consumer);
     cortex_m::interrupt::free(|cs| DOWNLINK_RX.borrow(cs).replace(Some(RxProducer::new(producer, &DOWNLINK_STATS))));
     rx.listen();
 
@@ -341,7 +371,7 @@ fn main() -> ! {
     let Ok(imu_dev) = ExclusiveDevice::new(spi, cs, CycleDelay);
     let i2c = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
     let mut delay = CycleDelay;
-    let mut suite = HeadSuite::new(
+    let suite = HeadSuite::new(
         HalSpi(imu_dev),
         core::array::from_fn(|_| HalI2c(RefCellDevice::new(&i2c))),
         HalI2c(RefCellDevice::new(&i2c)),
@@ -355,50 +385,99 @@ fn main() -> ! {
         suite.init.polarization.map(|p| p.is_none()),
         suite.init.depth.is_none()
     );
-    let mut next_tick_us = clock.now_us();
-    let mut next_stack_report_us = 60_000_000u64;
-
-    let mut window_start_us = clock.now_us();
-    let mut busy_us: u64 = 0;
+    let mut board = Stm32Board {
+        clock,
+        downlink,
+        suite,
+        store,
+        warm: warm.as_mut_slice(),
+        watchdog,
+        sink,
+        losses: 0,
+        next_stack_report_us: 60_000_000,
+    };
+    // Real time: after a stall the loop goes on at the current tick (no burst of late ticks).
+    let mut board_loop = BoardLoop::new(CatchUp::SkipAhead);
     loop {
-        let wake_us = clock.now_us();
-        let mut buf = [0u8; 64];
-        loop {
-            let n = downlink.drain(&mut buf);
-            match buf.get(..n) {
-                Some(bytes) if !bytes.is_empty() => app.on_downlink_bytes(wake_us, bytes, &mut sink),
-                _ => break,
-            }
-        }
-        report_rx_losses(&mut app, wake_us, &DOWNLINK_STATS, FaultSource::Link, &mut sink);
-        report_rx_losses(&mut app, wake_us, &DVL_STATS, FaultSource::Dvl, &mut sink);
-        // Sensors on the 1 ms grid (catching up without bursts after a long iteration).
-        if wake_us >= next_tick_us {
-            app.sensor_tick(wake_us, &mut suite, &mut sink);
-            app.service_store(wake_us, store, &mut sink);
-            app.service_warm_record(wake_us, warm.as_mut_slice());
-            next_tick_us = (next_tick_us + 1000).max(wake_us.saturating_sub(wake_us % 1000));
-        }
-        if wake_us >= next_stack_report_us {
-            let size = cortex_m_stack::stack_size();
-            defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", size.saturating_sub(cortex_m_stack::stack_painted()), size);
-            next_stack_report_us += 60_000_000;
-        }
-        if app.poll(wake_us, &mut sink) == BoardRequest::Reboot {
-            cortex_m::peripheral::SCB::sys_reset();
-        }
-        // The record's writes are done before the loop can stop (the next reset reads them).
-        core::sync::atomic::compiler_fence(Ordering::SeqCst);
-        watchdog.feed();
-        let done_us = clock.now_us();
-        busy_us += done_us.saturating_sub(wake_us);
-        let window = done_us.saturating_sub(window_start_us);
-        if window >= 1_000_000 {
-            app.set_cpu_load(u16::try_from(busy_us * 1000 / window).unwrap_or(1000));
-            window_start_us = done_us;
-            busy_us = 0;
-        }
+        board_loop.pass(&mut app, &mut board);
         // Wake on the 1 kHz tick (or a received byte; the queues hold them until the next pass).
         cortex_m::asm::wfi();
+    }
+}
+
+/// The board as the board loop sees it.
+struct Stm32Board<'a, S> {
+    clock: Clock,
+    downlink: RxConsumer<'static>,
+    suite: S,
+    store: &'a mut dyn RecordStore,
+    warm: &'a mut [u8],
+    watchdog: IndependentWatchdog,
+    sink: QueuedSink,
+    /// Losses of the receive queues taken at the start of the tick, one bit per (queue, kind):
+    /// see [`LOSSES`].
+    losses: u8,
+    next_stack_report_us: u64,
+}
+
+/// The receive queues' losses as faults, in the order of the `losses` bits: queue full or UART
+/// overrun is `Overrun`; framing, noise, parity is `Malformed`.
+const LOSSES: [(FaultSource, FaultKind); 4] = [
+    (FaultSource::Link, FaultKind::Overrun),
+    (FaultSource::Link, FaultKind::Malformed),
+    (FaultSource::Dvl, FaultKind::Overrun),
+    (FaultSource::Dvl, FaultKind::Malformed),
+];
+
+impl<S: SensorSuite> BoardIo for Stm32Board<'_, S> {
+    type Sensors = S;
+    type Sink = QueuedSink;
+
+    fn now_us(&mut self) -> u64 {
+        self.clock.now_us()
+    }
+
+    fn begin_tick(&mut self, _t_us: u64) {
+        let (link, dvl) = (DOWNLINK_STATS.take_new(), DVL_STATS.take_new());
+        let new = [link.overrun > 0, link.framing > 0, dvl.overrun > 0, dvl.framing > 0];
+        self.losses = new.iter().enumerate().fold(0, |m, (k, &on)| if on { m | (1 << k) } else { m });
+    }
+
+    fn read_downlink(&mut self, _t_us: u64, buf: &mut [u8]) -> usize {
+        self.downlink.drain(buf)
+    }
+
+    fn take_fault(&mut self) -> Option<(FaultSource, FaultKind)> {
+        let k = self.losses.trailing_zeros() as usize;
+        let loss = LOSSES.get(k).copied()?;
+        self.losses &= !(1 << k);
+        Some(loss)
+    }
+
+    fn parts(&mut self) -> BoardParts<'_, S, QueuedSink> {
+        BoardParts { sensors: Some(&mut self.suite), store: &mut *self.store, warm: Some(&mut *self.warm), sink: &mut self.sink }
+    }
+
+    /// The stack's peak over defmt, every 60 s.
+    fn end_tick(&mut self, t_us: u64, _app: &App) {
+        if t_us >= self.next_stack_report_us {
+            let size = cortex_m_stack::stack_size();
+            defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", size.saturating_sub(cortex_m_stack::stack_painted()), size);
+            self.next_stack_report_us += 60_000_000;
+        }
+    }
+
+    fn feed_watchdog(&mut self) {
+        self.watchdog.feed();
+    }
+
+    /// After the queued telemetry (the reboot's `Ack` among it) is sent, at most 100 ms.
+    fn reboot(&mut self) {
+        let deadline_us = self.clock.now_us() + 100_000;
+        while self.sink.0.pending() && self.clock.now_us() < deadline_us {}
+        // The last byte leaves the shift register (22 µs at 460,800 baud).
+        let end_us = self.clock.now_us() + 100;
+        while self.clock.now_us() < end_us {}
+        cortex_m::peripheral::SCB::sys_reset();
     }
 }

@@ -4,9 +4,11 @@
 //! commands, tick by tick in the boards' order, and every Nav solution it produces is compared
 //! with the one the firmware sent.
 //!
-//! How the inputs are put back (the boards' loop, `firmware/src/bin/qemu/main.rs` and
-//! [`run_native`](crate::sil::run_native): boot, the seq-0 start commands at t = 0, then per 1 ms
-//! tick downlink bytes, `sensor_tick`, `poll`):
+//! How the inputs are put back: the boards' own loop (`subnav_firmware::board_loop`, the code
+//! both boards and [`run_native`](crate::sil::run_native) run) with the recording as the board
+//! ([`ReplayBoard`]): boot, then per 1 ms tick the downlink (the seq-0 start commands, then the
+//! recorded commands, each framed again and fed as bytes), `sensor_tick`, the store (none),
+//! `poll`:
 //! - a [`SensorSuite`] answers each read from the recorded stream: a read succeeds with the
 //!   recorded sample when the next recorded message is that raw sample (for the IMU and the
 //!   polarization units also stamped with this tick), otherwise it fails (the board's read failed:
@@ -42,13 +44,14 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
-use subnav_firmware::app::BoardRequest;
+use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp, PassEnd};
+use subnav_firmware::store::NoStore;
 use subnav_firmware::sensors::{SensorFault, SensorSuite};
 use subnav_link::record::session::Session;
 use subnav_link::record::{Loaded, read_bytes};
 use subnav_wire::{
     Board, Command, CompassReport, ConfigItem, Decoded, DepthSample, Downlink, DvlSample, FaultKind, FaultSource, FrameDecoder, ImuSample,
-    MAX_UPLINK_FRAME, NavSolution, RawSample, Uplink,
+    MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, NavSolution, RawSample, Uplink,
 };
 
 /// Default tolerance: relative difference allowed per Nav value (see [`rel_diff`]).
@@ -521,6 +524,85 @@ impl SensorSuite for Suite<'_, '_> {
     }
 }
 
+/// The recording as a board (see the module doc): its clock is the replay's tick, its downlink
+/// the recorded commands (each delivered as its frame at the tick whose recorded stream continues
+/// with its `Ack`), its sensors and sink the recorded stream; no store, no kept memory.
+struct ReplayBoard<'s, 'a> {
+    t_us: u64,
+    state: &'s RefCell<State<'a>>,
+    /// The seq-0 start commands, then the recording's downlink (taken when delivered).
+    boot: VecDeque<Command>,
+    down: Vec<Option<Downlink>>,
+    /// The rest of the frame being delivered.
+    pending: VecDeque<u8>,
+    last_seq: Option<u16>,
+    suite: Suite<'s, 'a>,
+    sink: Sink<'s, 'a>,
+    store: NoStore,
+    /// Why the replay stops (a limitation) or cannot go on (an error).
+    stop: Option<String>,
+    error: Option<String>,
+}
+
+impl<'s, 'a> BoardIo for ReplayBoard<'s, 'a> {
+    type Sensors = Suite<'s, 'a>;
+    type Sink = Sink<'s, 'a>;
+    fn now_us(&mut self) -> u64 {
+        self.t_us
+    }
+    fn read_downlink(&mut self, t_us: u64, buf: &mut [u8]) -> usize {
+        if self.pending.is_empty() {
+            // Commands whose Ack comes next were handled at the start of this tick.
+            let next = self.state.borrow().peek().copied();
+            let Some(Uplink::Ack(ack)) = next else { return 0 };
+            let cmd = if ack.seq == 0 && !self.boot.is_empty() {
+                self.boot.pop_front().map(|c| Downlink { seq: 0, command: c })
+            } else {
+                self.down.iter_mut().find(|d| d.is_some_and(|d| d.seq == ack.seq)).and_then(Option::take)
+            };
+            let Some(cmd) = cmd else {
+                self.error = Some(format!(
+                    "the firmware acknowledged command seq {} at about {t_us} us but the recording's downlink holds no such command",
+                    ack.seq
+                ));
+                return 0;
+            };
+            let mut frame = [0u8; MAX_DOWNLINK_FRAME];
+            match subnav_wire::encode(&cmd, &mut frame) {
+                Ok(f) => self.pending.extend(f.iter()),
+                Err(e) => {
+                    self.error = Some(format!("command seq {} cannot be framed again ({e:?})", cmd.seq));
+                    return 0;
+                }
+            }
+            self.last_seq = Some(cmd.seq);
+            self.state.borrow_mut().report.commands_applied += 1;
+        }
+        let n = buf.len().min(self.pending.len());
+        for (dst, src) in buf.iter_mut().zip(self.pending.drain(..n)) {
+            *dst = src;
+        }
+        n
+    }
+    fn parts(&mut self) -> BoardParts<'_, Self::Sensors, Self::Sink> {
+        BoardParts { sensors: Some(&mut self.suite), store: &mut self.store, warm: None, sink: &mut self.sink }
+    }
+    fn halt(&mut self, app: &App) -> bool {
+        if self.pending.is_empty() && self.stop.is_none() && !app.config.stream_raw {
+            let t_us = self.t_us;
+            self.stop = Some(format!(
+                "raw streaming was switched off by command seq {} at about {t_us} us; the replay stops there",
+                self.last_seq.unwrap_or(0)
+            ));
+        }
+        self.stop.is_some() || self.error.is_some()
+    }
+    fn reboot(&mut self) {
+        let t_us = self.t_us;
+        self.stop = Some(format!("the firmware was asked to reboot at {t_us} us; the replay stops there"));
+    }
+}
+
 fn run(rec: &[Uplink], boot: Vec<Command>, downlink: &[Downlink], tolerance: f64, limitations: Vec<String>) -> Result<ReplayReport> {
     let report = ReplayReport {
         tolerance_rel: tolerance,
@@ -551,13 +633,25 @@ fn run(rec: &[Uplink], boot: Vec<Command>, downlink: &[Downlink], tolerance: f64
         _ => Board::QemuMps2An386,
     };
     let mut app = App::new(board);
-    let mut boot: VecDeque<Command> = boot.into();
-    let mut down: Vec<Option<Downlink>> = downlink.iter().copied().map(Some).collect();
     let last_us = rec.iter().filter_map(|m| m.t_us()).max().unwrap_or(0);
-    app.boot(0, &mut Sink(&state));
-    let mut stop: Option<String> = None;
+    let mut board = ReplayBoard {
+        t_us: 0,
+        state: &state,
+        boot: boot.into(),
+        down: downlink.iter().copied().map(Some).collect(),
+        pending: VecDeque::new(),
+        last_seq: None,
+        suite: Suite(&state),
+        sink: Sink(&state),
+        store: NoStore,
+        stop: None,
+        error: None,
+    };
+    app.boot(0, &mut board.sink);
+    // The boards' loop, on the replay's logical time: one tick per pass.
+    let mut board_loop = BoardLoop::new(CatchUp::EveryTick);
     let mut t_us = 0u64;
-    while stop.is_none() && state.borrow().report.diverged.is_none() {
+    while state.borrow().report.diverged.is_none() {
         if state.borrow().peek().is_none() {
             break; // the recording ends here (fault reports left over do not count)
         }
@@ -574,39 +668,21 @@ fn run(rec: &[Uplink], boot: Vec<Command>, downlink: &[Downlink], tolerance: f64
             state.borrow_mut().diverge(why);
             break;
         }
-        // Commands whose Ack comes next were handled at the start of this tick.
-        loop {
-            let next = state.borrow().peek().copied();
-            let Some(Uplink::Ack(ack)) = next else { break };
-            let cmd = if ack.seq == 0 && !boot.is_empty() {
-                boot.pop_front().map(|c| Downlink { seq: 0, command: c })
-            } else {
-                down.iter_mut().find(|d| d.is_some_and(|d| d.seq == ack.seq)).and_then(Option::take)
-            };
-            let Some(cmd) = cmd else {
-                bail!(
-                    "the firmware acknowledged command seq {} at about {t_us} us but the recording's downlink holds no such command",
-                    ack.seq
-                );
-            };
-            app.handle_command(t_us, cmd, &mut Sink(&state));
-            state.borrow_mut().report.commands_applied += 1;
-            if !app.config.stream_raw {
-                stop =
-                    Some(format!("raw streaming was switched off by command seq {} at about {t_us} us; the replay stops there", cmd.seq));
-                break;
-            }
+        board.t_us = t_us;
+        let end = board_loop.pass(&mut app, &mut board);
+        if let Some(e) = board.error.take() {
+            bail!(e);
         }
-        if stop.is_some() {
-            break;
-        }
-        app.sensor_tick(t_us, &mut Suite(&state), &mut Sink(&state));
-        if app.poll(t_us, &mut Sink(&state)) == BoardRequest::Reboot {
-            stop = Some(format!("the firmware was asked to reboot at {t_us} us; the replay stops there"));
+        if end == PassEnd::Halted {
+            break; // stopped after a command, before the tick's sensors
         }
         state.borrow_mut().report.replayed_to_us = t_us;
+        if end == PassEnd::Reboot {
+            break;
+        }
         t_us += 1000;
     }
+    let ReplayBoard { down, stop, .. } = board;
     let mut report = state.into_inner().report;
     report.commands_unacked = down.iter().filter(|d| d.is_some()).count();
     if let Some(s) = stop {

@@ -16,6 +16,8 @@ use embedded_io::Read as _;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
 use subnav_firmware::app::SERIAL_POLL_US;
+use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
+use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
@@ -108,6 +110,44 @@ impl TelemetrySink for Collect<'_> {
         }
         true
     }
+}
+
+/// The native head as the board loop sees it: the bridge's clock, the modem (bridge UART 1, read
+/// on the serial-poll grid as on the QEMU board), the suite, the store, the collecting sink.
+struct SilBoard<'b, 'o, S> {
+    t_us: u64,
+    bridge: &'b RefCell<BridgeClient<InProcessLink>>,
+    modem: BridgeUart<'b, InProcessLink>,
+    modem_reads: u8,
+    suite: S,
+    store: &'b mut dyn RecordStore,
+    sink: Collect<'o>,
+}
+
+/// Modem reads per serial poll (of 64 bytes each), as on the QEMU board.
+const MODEM_READS_PER_POLL: u8 = 4;
+
+impl<'o, S: SensorSuite> BoardIo for SilBoard<'_, 'o, S> {
+    type Sensors = S;
+    type Sink = Collect<'o>;
+    fn now_us(&mut self) -> u64 {
+        self.t_us
+    }
+    fn begin_tick(&mut self, t_us: u64) {
+        self.bridge.borrow_mut().set_time(t_us);
+        self.modem_reads = 0;
+    }
+    fn read_downlink(&mut self, t_us: u64, buf: &mut [u8]) -> usize {
+        if t_us % SERIAL_POLL_US != 0 || self.modem_reads >= MODEM_READS_PER_POLL {
+            return 0;
+        }
+        self.modem_reads += 1;
+        self.modem.read(buf).unwrap_or(0)
+    }
+    fn parts(&mut self) -> BoardParts<'_, S, Collect<'o>> {
+        BoardParts { sensors: Some(&mut self.suite), store: &mut *self.store, warm: None, sink: &mut self.sink }
+    }
+    fn reboot(&mut self) {}
 }
 
 /// Telemetry of a native run.
@@ -231,7 +271,7 @@ fn run_native_on(
         app.handle_command(0, Downlink { seq: 0, command }, &mut sink);
     }
     let mut delay = BridgeDelay::new(&bridge);
-    let mut suite = HeadSuite::new(
+    let suite = HeadSuite::new(
         BridgeSpi::new(&bridge, 0, 0),
         core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
         BridgeI2c::new(&bridge, 0),
@@ -239,27 +279,21 @@ fn run_native_on(
         &mut delay,
     )
     .with_camera_trigger(BridgePin::new(&bridge, 0));
-    let mut modem = BridgeUart::new(&bridge, 1);
-    let mut rx = [0u8; 64];
+    let mut board =
+        SilBoard { t_us: 0, bridge: &bridge, modem: BridgeUart::new(&bridge, 1), modem_reads: 0, suite, store, sink };
+    // The board loop of the boards, on the run's logical time: one tick per pass.
+    let mut board_loop = BoardLoop::new(CatchUp::EveryTick);
     let end_ms = (sc.duration_s * 1000.0).round() as u64;
     for ms in 0..=end_ms {
-        let t_us = ms * 1000;
-        sink.now_us = t_us;
-        if let (Some(p), Some(n)) = (progress.filter(|_| ms % 1000 == 0), sink.last_nav.as_ref()) {
+        board.t_us = ms * 1000;
+        board.sink.now_us = board.t_us;
+        if let (Some(p), Some(n)) = (progress.filter(|_| ms % 1000 == 0), board.sink.last_nav.as_ref()) {
             p(&LiveStatus::new(n, map.as_ref()));
         }
-        bridge.borrow_mut().set_time(t_us);
-        if t_us % SERIAL_POLL_US == 0 {
-            for _ in 0..4 {
-                let n = modem.read(&mut rx).unwrap_or(0);
-                let Some(bytes) = rx.get(..n).filter(|b| !b.is_empty()) else { break };
-                app.on_downlink_bytes(t_us, bytes, &mut sink);
-            }
-        }
-        app.sensor_tick(t_us, &mut suite, &mut sink);
-        app.service_store(t_us, store, &mut sink);
-        let _ = app.poll(t_us, &mut sink);
+        // A reboot request is not acted on: the native run has no reset (as before the loop was shared).
+        let _ = board_loop.pass(&mut app, &mut board);
     }
+    let SilBoard { sink, .. } = board;
     let transactions = bridge.into_inner().link_mut().transactions;
     downlink.extend(delivered.lock().unwrap_or_else(|e| e.into_inner()).drain(..));
     let map = map.map(|m| {

@@ -52,12 +52,14 @@ impl ByteLink for PipeLink {
 }
 
 use subnav_firmware::app::SERIAL_POLL_US;
+use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
+use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, NoStore, RecordStore};
 use subnav_firmware::time::TickClock;
-use subnav_firmware::{App, TelemetrySink, app::BoardRequest};
+use subnav_firmware::{App, TelemetrySink};
 use subnav_wire::{Board, Command, ConfigItem, Downlink, ResetCause};
 
 mod cmsdk_uart;
@@ -208,7 +210,7 @@ fn main() -> ! {
 
     let mut uart = Uart::uart0();
     let opts = run_options();
-    let mut clock = Clock(TickClock::new(CORE_HZ));
+    let clock = Clock(TickClock::new(CORE_HZ));
     let mut app = App::new(Board::QemuMps2An386);
     app.set_reset_cause(reset_cause);
 
@@ -244,7 +246,7 @@ fn main() -> ! {
     }
     // Started after the store's boot: reformatting a damaged store erases sector after sector
     // (seconds of flash time, bounded by the chip's size), longer than the watchdog's period.
-    let mut watchdog = Watchdog::start(WATCHDOG_PERIOD_MS);
+    let watchdog = Watchdog::start(WATCHDOG_PERIOD_MS);
     if let Some(utc) = opts.utc_unix_us.and_then(|u| i64::try_from(u).ok()) {
         app.handle_command(0, Downlink { seq: 0, command: Command::SetTime { t_us: 0, utc_unix_us: utc } }, &mut uart);
     }
@@ -275,73 +277,116 @@ fn main() -> ! {
 
     // The modem that brings the host's position fixes in a simulated dive (bridge UART 1: read
     // on the firmware's logical time, so the run stays deterministic).
-    let mut modem = has_bridge.then(|| BridgeUart::new(&bridge, 1));
-    let mut rx = [0u8; 64];
-    let mut next_tick_ms: u64 = 0;
-    let mut window_start_us = clock.now_us();
-    let mut busy_us: u64 = 0;
+    let modem = has_bridge.then(|| BridgeUart::new(&bridge, 1));
+    let mut board = QemuBoard {
+        clock,
+        uart,
+        modem,
+        bridge: &bridge,
+        suite: suite.as_mut(),
+        store,
+        warm: warm.as_mut_slice(),
+        watchdog,
+        opts: &opts,
+        reset_cause,
+        uart_read: false,
+        modem_reads: 0,
+    };
+    // Logical time: every tick runs, whatever the host's speed (see the module doc).
+    let mut board_loop = BoardLoop::new(CatchUp::EveryTick);
     loop {
-        let wake_us = clock.now_us();
-        let hw_ms = wake_us / 1000;
-        while next_tick_ms <= hw_ms {
-            let t_us = next_tick_ms * 1000;
-            next_tick_ms += 1;
-            bridge.borrow_mut().set_time(t_us);
-            let n = uart.read_available(&mut rx);
-            if let Some(bytes) = rx.get(..n) {
-                if !bytes.is_empty() {
-                    app.on_downlink_bytes(t_us, bytes, &mut uart);
-                }
-            }
-            if let Some(m) = modem.as_mut().filter(|_| t_us % SERIAL_POLL_US == 0) {
-                for _ in 0..4 {
-                    let n = embedded_io::Read::read(m, &mut rx).unwrap_or(0);
-                    let Some(bytes) = rx.get(..n).filter(|b| !b.is_empty()) else { break };
-                    app.on_downlink_bytes(t_us, bytes, &mut uart);
-                }
-            }
-            if let Some(s) = suite.as_mut() {
-                app.sensor_tick(t_us, s, &mut uart);
-            }
-            app.service_store(t_us, store, &mut uart);
-            app.service_warm_record(t_us, warm.as_mut_slice());
-            if app.poll(t_us, &mut uart) == BoardRequest::Reboot {
-                defmt::info!("reboot requested");
-                cmsdk_watchdog::mark_next_reset(ResetCause::Software);
-                cortex_m::peripheral::SCB::sys_reset();
-            }
-            if let Some(t) = opts.panic_at_ms {
-                if t_us >= t * 1000 {
-                    panic!("injected panic at {} ms (panic_at_ms self-test)", t);
-                }
-            }
-            if let Some(t) = opts.hang_at_ms.filter(|_| reset_cause == ResetCause::PowerOn) {
-                if t_us >= t * 1000 {
-                    hang(t);
-                }
-            }
-            if let Some(t) = opts.run_ms {
-                if t_us >= t * 1000 {
-                    let size = cortex_m_stack::stack_size();
-                    let peak = size.saturating_sub(cortex_m_stack::stack_painted());
-                    defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", peak, size);
-                    defmt::info!("run_ms reached, exiting");
-                    debug::exit(debug::EXIT_SUCCESS);
-                }
-            }
-        }
-        // The record's writes are done before the loop can stop (the next reset reads them).
-        core::sync::atomic::compiler_fence(Ordering::SeqCst);
-        watchdog.feed();
-        let done_us = clock.now_us();
-        busy_us += done_us.saturating_sub(wake_us);
-        let window = done_us.saturating_sub(window_start_us);
-        if window >= 1_000_000 {
-            app.set_cpu_load(u16::try_from(busy_us * 1000 / window).unwrap_or(1000));
-            window_start_us = done_us;
-            busy_us = 0;
-        }
+        board_loop.pass(&mut app, &mut board);
         cortex_m::asm::wfi();
+    }
+}
+
+/// The board as the board loop sees it.
+struct QemuBoard<'a, S> {
+    clock: Clock,
+    uart: Uart,
+    modem: Option<BridgeUart<'a, PipeLink>>,
+    bridge: &'a RefCell<BridgeClient<PipeLink>>,
+    suite: Option<&'a mut S>,
+    store: &'a mut dyn RecordStore,
+    warm: &'a mut [u8],
+    watchdog: Watchdog,
+    opts: &'a RunOptions,
+    reset_cause: ResetCause,
+    /// This tick's UART 0 read is done; the modem's reads this tick.
+    uart_read: bool,
+    modem_reads: u8,
+}
+
+/// Modem reads per serial poll (of 64 bytes each).
+const MODEM_READS_PER_POLL: u8 = 4;
+
+impl<S: SensorSuite> BoardIo for QemuBoard<'_, S> {
+    type Sensors = S;
+    type Sink = Uart;
+
+    fn now_us(&mut self) -> u64 {
+        self.clock.now_us()
+    }
+
+    fn begin_tick(&mut self, t_us: u64) {
+        self.bridge.borrow_mut().set_time(t_us);
+        self.uart_read = false;
+        self.modem_reads = 0;
+    }
+
+    /// UART 0 first (what it holds), then the modem on the serial-poll grid.
+    fn read_downlink(&mut self, t_us: u64, buf: &mut [u8]) -> usize {
+        if !self.uart_read {
+            self.uart_read = true;
+            let n = self.uart.read_available(buf);
+            if n > 0 {
+                return n;
+            }
+        }
+        match self.modem.as_mut().filter(|_| t_us % SERIAL_POLL_US == 0 && self.modem_reads < MODEM_READS_PER_POLL) {
+            Some(m) => {
+                self.modem_reads += 1;
+                embedded_io::Read::read(m, buf).unwrap_or(0)
+            }
+            None => 0,
+        }
+    }
+
+    fn parts(&mut self) -> BoardParts<'_, S, Uart> {
+        BoardParts { sensors: self.suite.as_deref_mut(), store: &mut *self.store, warm: Some(&mut *self.warm), sink: &mut self.uart }
+    }
+
+    /// The self-tests (`panic_at_ms`, `hang_at_ms`) and the end of the run (`run_ms`).
+    fn end_tick(&mut self, t_us: u64, _app: &App) {
+        if let Some(t) = self.opts.panic_at_ms {
+            if t_us >= t * 1000 {
+                panic!("injected panic at {} ms (panic_at_ms self-test)", t);
+            }
+        }
+        if let Some(t) = self.opts.hang_at_ms.filter(|_| self.reset_cause == ResetCause::PowerOn) {
+            if t_us >= t * 1000 {
+                hang(t);
+            }
+        }
+        if let Some(t) = self.opts.run_ms {
+            if t_us >= t * 1000 {
+                let size = cortex_m_stack::stack_size();
+                let peak = size.saturating_sub(cortex_m_stack::stack_painted());
+                defmt::info!("stack peak {=u32} bytes of {=u32} (painted)", peak, size);
+                defmt::info!("run_ms reached, exiting");
+                debug::exit(debug::EXIT_SUCCESS);
+            }
+        }
+    }
+
+    fn feed_watchdog(&mut self) {
+        self.watchdog.feed();
+    }
+
+    fn reboot(&mut self) {
+        defmt::info!("reboot requested");
+        cmsdk_watchdog::mark_next_reset(ResetCause::Software);
+        cortex_m::peripheral::SCB::sys_reset();
     }
 }
 
