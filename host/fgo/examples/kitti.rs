@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 use subnav_fgo::gating::GatingConfig;
 use subnav_fgo::kitti;
-use subnav_fgo::kitti_run::{self, Faults, KittiConfig};
+use subnav_fgo::kitti_run::{self, Faults, KittiConfig, Oracle, Role};
 
 fn arg(name: &str) -> Option<String> {
     let a: Vec<String> = std::env::args().collect();
@@ -205,6 +205,26 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
                 r.fixes_inflated(),
                 jumped_t.len()
             );
+        }
+    }
+    // bounds: the jumps case with decisions that know which fixes jumped (real time only)
+    println!("\n| 20 % jumps, knowing which fixes jumped | gate | real-time RMSE m | real-time max m |\n|---|---|---|---|");
+    let jumps = Faults { jump_probability: 0.2, jump_m: 20.0, seed: 1, ..Default::default() };
+    for (oname, oracle, never_used) in
+        [("jumped fixes never used", Oracle::None, true), ("each jumped fix taken out when the next fix arrives", Oracle::NextFix, false)]
+    {
+        for (gname, gating) in [("adaptive", GatingConfig::default()), ("off", GatingConfig { enabled: false, ..Default::default() })] {
+            let cfg = KittiConfig { faults: jumps.clone(), gating, oracle, ..base.clone() };
+            let mut sc = kitti_run::scenario(data, &cfg)?;
+            let roles: Vec<Role> = sc.epochs.iter().map(|e| e.role).collect();
+            if never_used {
+                sc.epochs.iter_mut().filter(|e| e.jumped).for_each(|e| e.role = Role::Dropped);
+            }
+            let r = kitti_run::run_graph(data, &sc, &cfg)?;
+            // scored on the same held-out epochs as the table above
+            sc.epochs.iter_mut().zip(roles).for_each(|(e, r)| e.role = r);
+            let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime));
+            println!("| {oname} | {gname} | {:.3} | {:.3} |", t.rmse_heldout_m, t.max_heldout_m);
         }
     }
     Ok(())

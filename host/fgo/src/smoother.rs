@@ -459,6 +459,28 @@ impl Smoother {
         Ok(())
     }
 
+    /// Take a fix that is still in the window out after the fact (its covariance x
+    /// [`gating::OUTLIER_KAPPA`]), solve the window again and output the newest node: what an
+    /// outside judgement (an integrity monitor, or an evaluation that knows which fixes were
+    /// corrupted, see `kitti_run::Oracle`) does with a fix once it is known to be wrong.
+    /// `false` (nothing done) if no USBL fix at `t_valid` is in the window.
+    pub fn exclude_fix(&mut self, t_valid: f64) -> Result<bool, FgoError> {
+        let mut found = false;
+        for f in self.factors.iter_mut() {
+            if let Factor::Usbl(u) = f {
+                if (self.times[u.node] - t_valid).abs() < 1e-9 && u.kappa < gating::OUTLIER_KAPPA {
+                    u.noise = u.noise.scaled(gating::OUTLIER_KAPPA / u.kappa);
+                    u.kappa = gating::OUTLIER_KAPPA;
+                    found = true;
+                }
+            }
+        }
+        if found {
+            self.optimize_and_marginalize()?;
+        }
+        Ok(found)
+    }
+
     /// All node estimates (history + window), sorted by time, and all real factors re-indexed to
     /// that order: the batch problem.
     pub fn batch_problem(&self) -> (Vec<Estimate>, Vec<Factor>) {
