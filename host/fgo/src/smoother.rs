@@ -624,6 +624,34 @@ mod tests {
         assert!(rg < 5.0);
     }
 
+    /// A fix 30 m off, accepted (gate off), pulls the newest estimate; taken out after the fact
+    /// it no longer does; a time with no fix in the window is refused.
+    #[test]
+    fn a_fix_taken_out_after_the_fact_stops_pulling() {
+        let sim = simulate(&SimConfig { duration_s: 20.0, seed: 3, abnormal_fraction: 0.0, dvl_lock_losses: 0, ..Default::default() });
+        let off = SmootherConfig { gating: GatingConfig { enabled: false, ..Default::default() }, ..Default::default() };
+        let mut sm = Smoother::new(sim.log.config, off).unwrap();
+        for s in &sim.log.imu {
+            sm.push_imu(*s).unwrap();
+        }
+        let t0 = sim.log.config.prior.t_s;
+        for d in sim.log.dvl.iter().filter(|d| d.t_s > t0 && d.t_s < t0 + 5.0) {
+            sm.add_dvl(d.t_s, Vector3::from(d.vel_dvl_mps), d.sigma_mps).unwrap();
+        }
+        let t = *sm.times.last().unwrap();
+        let truth = sim.truth.at(t).pos_enu_m;
+        let err = |sm: &Smoother| (sm.realtime.last().unwrap().state.nav.pos_enu_m - truth).norm();
+        let before = err(&sm);
+        sm.add_usbl(t, truth + Vector3::new(30.0, 0.0, 0.0), 0.5, 0.5).unwrap();
+        let pulled = err(&sm);
+        assert!(sm.exclude_fix(t).unwrap());
+        let after = err(&sm);
+        eprintln!("error at the fix: {before:.3} m before, {pulled:.3} m with the 30-m fix, {after:.3} m once it is out");
+        assert!(pulled > 10.0 && after < 0.2 * pulled, "{before} {pulled} {after}");
+        assert!(!sm.exclude_fix(t).unwrap(), "already out");
+        assert!(!sm.exclude_fix(t0 - 100.0).unwrap(), "no fix there");
+    }
+
     #[test]
     fn late_fix_older_than_window_is_dropped_and_counted() {
         let sim = simulate(&SimConfig { duration_s: 15.0, seed: 3, ..Default::default() });
