@@ -5,14 +5,15 @@
 //! `SUBNAV_PEER_PYTHON=<venv>/bin/python cargo run --release -p subnav-fgo --example kitti
 //! [-- --duration-s S] [--fix-every K] [--gates-only]`
 //! `--gates-only`: only the gate table (graph, seed's fixed gate vs adaptive vs off; no peer, no
-//! filter).
+//! filter). `--jump-seeds N`: the 20 % jumps case drawn with seeds 1..=N, gate on and off (the
+//! table's jumps rows are seed 1: one draw of 8 jumps).
 //! The data is read from that python's installed gtsam wheel (never copied).
 
 use std::path::PathBuf;
 
 use subnav_fgo::gating::GatingConfig;
 use subnav_fgo::kitti;
-use subnav_fgo::kitti_run::{self, Faults, KittiConfig};
+use subnav_fgo::kitti_run::{self, Faults, KittiConfig, Oracle, Role};
 
 fn arg(name: &str) -> Option<String> {
     let a: Vec<String> = std::env::args().collect();
@@ -31,6 +32,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         base.fix_every = k.parse()?;
     }
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/peers/gtsam_kitti.py");
+    if let Some(n) = arg("--jump-seeds") {
+        return jump_seeds(&data, &base, n.parse()?);
+    }
     if std::env::args().any(|a| a == "--gates-only") {
         return gate_table(&data, &base);
     }
@@ -207,5 +211,57 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
             );
         }
     }
+    // bounds: the jumps case with decisions that know which fixes jumped (real time only)
+    println!("\n| 20 % jumps, knowing which fixes jumped | gate | real-time RMSE m | real-time max m |\n|---|---|---|---|");
+    let jumps = Faults { jump_probability: 0.2, jump_m: 20.0, seed: 1, ..Default::default() };
+    for (oname, oracle, never_used) in
+        [("jumped fixes never used", Oracle::None, true), ("each jumped fix taken out when the next fix arrives", Oracle::NextFix, false)]
+    {
+        for (gname, gating) in [("adaptive", GatingConfig::default()), ("off", GatingConfig { enabled: false, ..Default::default() })] {
+            let cfg = KittiConfig { faults: jumps.clone(), gating, oracle, ..base.clone() };
+            let mut sc = kitti_run::scenario(data, &cfg)?;
+            let roles: Vec<Role> = sc.epochs.iter().map(|e| e.role).collect();
+            if never_used {
+                sc.epochs.iter_mut().filter(|e| e.jumped).for_each(|e| e.role = Role::Dropped);
+            }
+            let r = kitti_run::run_graph(data, &sc, &cfg)?;
+            // scored on the same held-out epochs as the table above
+            sc.epochs.iter_mut().zip(roles).for_each(|(e, r)| e.role = r);
+            let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime));
+            println!("| {oname} | {gname} | {:.3} | {:.3} |", t.rmse_heldout_m, t.max_heldout_m);
+        }
+    }
+    Ok(())
+}
+
+/// The jumps case (20 % of the fixes, 10-20 m) over `n` draws: held-out RMSE of the batch and
+/// the real time, adaptive gate and off, per seed and the mean.
+fn jump_seeds(data: &kitti::KittiData, base: &KittiConfig, n: u64) -> Result<(), Box<dyn std::error::Error>> {
+    println!("| seed | jumps | batch on | batch off | real time on | real time off |\n|---|---|---|---|---|---|");
+    let mut sum = [0.0f64; 4];
+    let (mut b_wins, mut t_wins) = (0, 0);
+    for seed in 1..=n {
+        let faults = Faults { jump_probability: 0.2, jump_m: 20.0, seed, ..Default::default() };
+        let mut row = Vec::new();
+        let mut jumps = 0;
+        for enabled in [true, false] {
+            let cfg = KittiConfig { faults: faults.clone(), gating: GatingConfig { enabled, ..Default::default() }, ..base.clone() };
+            let sc = kitti_run::scenario(data, &cfg)?;
+            jumps = sc.epochs.iter().filter(|e| e.jumped).count();
+            let r = kitti_run::run_graph(data, &sc, &cfg)?;
+            row.push(kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch)).rmse_heldout_m);
+            row.push(kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime)).rmse_heldout_m);
+        }
+        let (b_on, t_on, b_off, t_off) = (row[0], row[1], row[2], row[3]);
+        b_wins += usize::from(b_on < b_off);
+        t_wins += usize::from(t_on < t_off);
+        for (s, x) in sum.iter_mut().zip([b_on, b_off, t_on, t_off]) {
+            *s += x;
+        }
+        println!("| {seed} | {jumps} | {b_on:.3} | {b_off:.3} | {t_on:.3} | {t_off:.3} |");
+    }
+    let m = |i: usize| sum[i] / n as f64;
+    println!("| mean | | {:.3} | {:.3} | {:.3} | {:.3} |", m(0), m(1), m(2), m(3));
+    println!("gate on better than off: batch in {b_wins} of {n} draws, real time in {t_wins} of {n}");
     Ok(())
 }

@@ -51,6 +51,19 @@ pub struct Faults {
     pub seed: u64,
 }
 
+/// Evaluation only: decisions on the injected jumps made with the knowledge of which fixes
+/// jumped, to bound what a gate could gain (the bounds in docs/PERFORMANCE.md, "Abnormal
+/// observations on the real fixes").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Oracle {
+    /// No knowledge: the gate decides.
+    #[default]
+    None,
+    /// Each jumped fix taken out of the smoother when the next fix arrives (a perfect decision
+    /// delayed by one fix; the fix is used until then).
+    NextFix,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct KittiConfig {
     pub first_fix: usize,
@@ -64,6 +77,7 @@ pub struct KittiConfig {
     pub iterations: usize,
     pub gating: GatingConfig,
     pub faults: Faults,
+    pub oracle: Oracle,
 }
 
 impl Default for KittiConfig {
@@ -79,6 +93,7 @@ impl Default for KittiConfig {
             iterations: 2,
             gating: GatingConfig::default(),
             faults: Faults::default(),
+            oracle: Oracle::None,
         }
     }
 }
@@ -263,6 +278,7 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         ),
         ImuBias::default(),
     ));
+    let mut prev_jumped: Option<f64> = None;
     for e in &sc.epochs[1..] {
         while next < data.imu.len() && data.imu[next].t_s <= e.t_s {
             sm.push_imu(data.imu[next])?;
@@ -270,6 +286,12 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         }
         if e.role == Role::Used {
             sm.add_usbl(e.t_s, e.measured_enu_m, cfg.fix_sigma_m, cfg.fix_sigma_m)?;
+            if cfg.oracle == Oracle::NextFix {
+                if let Some(p) = prev_jumped.take() {
+                    sm.exclude_fix(p)?;
+                }
+                prev_jumped = e.jumped.then_some(e.t_s);
+            }
         } else if !sm.add_node(e.t_s)? {
             return Err(FgoError::Numeric(format!("epoch t={} fell before the smoother window", e.t_s)));
         }

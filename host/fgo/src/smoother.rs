@@ -459,6 +459,28 @@ impl Smoother {
         Ok(())
     }
 
+    /// Take a fix that is still in the window out after the fact (its covariance x
+    /// [`gating::OUTLIER_KAPPA`]), solve the window again and output the newest node: what an
+    /// outside judgement (an integrity monitor, or an evaluation that knows which fixes were
+    /// corrupted, see `kitti_run::Oracle`) does with a fix once it is known to be wrong.
+    /// `false` (nothing done) if no USBL fix at `t_valid` is in the window.
+    pub fn exclude_fix(&mut self, t_valid: f64) -> Result<bool, FgoError> {
+        let mut found = false;
+        for f in self.factors.iter_mut() {
+            if let Factor::Usbl(u) = f {
+                if (self.times[u.node] - t_valid).abs() < 1e-9 && u.kappa < gating::OUTLIER_KAPPA {
+                    u.noise = u.noise.scaled(gating::OUTLIER_KAPPA / u.kappa);
+                    u.kappa = gating::OUTLIER_KAPPA;
+                    found = true;
+                }
+            }
+        }
+        if found {
+            self.optimize_and_marginalize()?;
+        }
+        Ok(found)
+    }
+
     /// All node estimates (history + window), sorted by time, and all real factors re-indexed to
     /// that order: the batch problem.
     pub fn batch_problem(&self) -> (Vec<Estimate>, Vec<Factor>) {
@@ -600,6 +622,34 @@ mod tests {
         assert!(g.batch_report.unwrap().converged);
         assert!(rg < ru, "gated {rg} ungated {ru}");
         assert!(rg < 5.0);
+    }
+
+    /// A fix 30 m off, accepted (gate off), pulls the newest estimate; taken out after the fact
+    /// it no longer does; a time with no fix in the window is refused.
+    #[test]
+    fn a_fix_taken_out_after_the_fact_stops_pulling() {
+        let sim = simulate(&SimConfig { duration_s: 20.0, seed: 3, abnormal_fraction: 0.0, dvl_lock_losses: 0, ..Default::default() });
+        let off = SmootherConfig { gating: GatingConfig { enabled: false, ..Default::default() }, ..Default::default() };
+        let mut sm = Smoother::new(sim.log.config, off).unwrap();
+        for s in &sim.log.imu {
+            sm.push_imu(*s).unwrap();
+        }
+        let t0 = sim.log.config.prior.t_s;
+        for d in sim.log.dvl.iter().filter(|d| d.t_s > t0 && d.t_s < t0 + 5.0) {
+            sm.add_dvl(d.t_s, Vector3::from(d.vel_dvl_mps), d.sigma_mps).unwrap();
+        }
+        let t = *sm.times.last().unwrap();
+        let truth = sim.truth.at(t).pos_enu_m;
+        let err = |sm: &Smoother| (sm.realtime.last().unwrap().state.nav.pos_enu_m - truth).norm();
+        let before = err(&sm);
+        sm.add_usbl(t, truth + Vector3::new(30.0, 0.0, 0.0), 0.5, 0.5).unwrap();
+        let pulled = err(&sm);
+        assert!(sm.exclude_fix(t).unwrap());
+        let after = err(&sm);
+        eprintln!("error at the fix: {before:.3} m before, {pulled:.3} m with the 30-m fix, {after:.3} m once it is out");
+        assert!(pulled > 10.0 && after < 0.2 * pulled, "{before} {pulled} {after}");
+        assert!(!sm.exclude_fix(t).unwrap(), "already out");
+        assert!(!sm.exclude_fix(t0 - 100.0).unwrap(), "no fix there");
     }
 
     #[test]
