@@ -15,16 +15,14 @@
 //! refused for its time is a counted `TooOld` / `FromFuture` fault.
 
 use subnav_wire::{
-    Board, Decoded, Downlink, Fault, FaultKind, FaultSource, FilterHealth, FrameDecoder,
-    MAX_DOWNLINK_FRAME, Refusal, ResetCause, Uplink, boot_message,
+    Board, Decoded, Downlink, Fault, FaultKind, FaultSource, FilterHealth, FrameDecoder, MAX_DOWNLINK_FRAME, Refusal, ResetCause, Uplink,
+    boot_message,
 };
 
 use subnav_core::ephemeris::Observer;
 use subnav_core::head;
 use subnav_core::nav::NavError;
-use subnav_wire::{
-    CalibrationInUse, CameraTrigger, DvlSample, PolarizationSample, RawSample, Record, RecordKey, StoreStatus,
-};
+use subnav_wire::{CalibrationInUse, CameraTrigger, DvlSample, PolarizationSample, RawSample, Record, RecordKey, StoreStatus};
 
 use crate::calibration;
 use crate::config::AppConfig;
@@ -560,7 +558,6 @@ impl App {
         }
         core::mem::replace(&mut self.request, BoardRequest::None)
     }
-
 }
 
 fn mark_in_use(cal: &mut CalibrationInUse, key: RecordKey, stored: bool) {
@@ -600,8 +597,8 @@ fn occluded_units(readings: &[(usize, [i16; 4])]) -> u8 {
 mod tests {
     use super::commands::covariance_is_pd;
     use super::*;
-    use subnav_wire::{Command, CommandAck, ConfigItem, RecordReport};
     use subnav_wire::{self as wire, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, NavSolution};
+    use subnav_wire::{Command, CommandAck, ConfigItem, RecordReport};
 
     fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
         let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();

@@ -322,9 +322,7 @@ mod tests {
         assert_eq!(board.feeds, 1);
         let msgs = decode_all(&board.out);
         assert!(msgs.iter().any(|m| matches!(m, Uplink::Ack(CommandAck { seq: 1, result: Ok(()) }))));
-        assert!(
-            msgs.iter().any(|m| matches!(m, Uplink::Fault(f) if f.source == FaultSource::Link && f.kind == FaultKind::Overrun))
-        );
+        assert!(msgs.iter().any(|m| matches!(m, Uplink::Fault(f) if f.source == FaultSource::Link && f.kind == FaultKind::Overrun)));
         assert_eq!(app.config.nav_rate_hz, 20);
         // Nothing due: no tick, the watchdog still fed.
         assert_eq!(lp.pass(&mut app, &mut board), PassEnd::Idle);

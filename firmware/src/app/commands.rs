@@ -6,11 +6,9 @@
 //!
 //! A child module of `app`: it works on the `App`'s own state, as the rest of the application.
 
-use subnav_core::nav::NavError;
-use subnav_wire::{
-    Command, CommandAck, ConfigItem, Downlink, FaultKind, Record, RecordKey, RecordReport, Refusal, Uplink,
-};
 use subnav_core::head;
+use subnav_core::nav::NavError;
+use subnav_wire::{Command, CommandAck, ConfigItem, Downlink, FaultKind, Record, RecordKey, RecordReport, Refusal, Uplink};
 
 use super::{App, BoardRequest, StoreState};
 use crate::calibration;

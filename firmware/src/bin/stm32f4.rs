@@ -56,15 +56,15 @@ use stm32f4xx_hal::{
     spi::{Mode, Phase, Polarity},
     watchdog::IndependentWatchdog,
 };
+use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
 use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::estimator::warm::WARM_RECORD_BYTES;
 use subnav_firmware::hal_bus::{HalBusError, HalI2c, HalSpi};
 use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats, TxConsumer, TxProducer, TxStats};
-use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
-use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::{App, TelemetrySink};
 use subnav_wire::{Board, FaultKind, FaultSource, ResetCause};
 

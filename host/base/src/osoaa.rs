@@ -23,7 +23,8 @@
 //! - water: by its single-scattering albedo `b / c` between OSOAA's clear (0.75) and turbid
 //!   (0.925), linear, held at the nearer one outside;
 //! - depth: by optical depth `c z`, linear between a water's cases (5, 10, 20 m of its `c`),
-//!   held at the nearest case outside (shallower than 5 m, deeper than 20 m of that water);
+//!   held at the nearest case shallower than 5 m and deeper up to twice the deepest case's
+//!   optical depth; beyond that the departure fades as the simulator's own DoLP falls from there;
 //! - wind: linear between 0 and 5 m/s, held at 5 m/s above;
 //! - sun zenith: linear between 30 and 60 deg, held at the nearer outside (the departure, not
 //!   the field: the single-scattering pattern still follows the real sun);
@@ -118,6 +119,8 @@ pub struct Node<'a> {
     pub case: &'a Case,
     pub weight: f64,
     pub depth_m: f64,
+    /// The water's deepest case, held for a greater optical depth.
+    pub beyond_deepest: bool,
 }
 
 /// Linear weights of `x` between the bracketing values of `xs` (sorted, distinct), held at the
@@ -290,7 +293,8 @@ impl Table {
                     for (id, wd) in weights(&taus, tau) {
                         let weight = ww * wwi * ws * wd;
                         if weight > 0.0 {
-                            out.push(Node { case: depths[id], weight, depth_m: taus[id] / c_per_m.max(1e-9) });
+                            let beyond_deepest = id + 1 == taus.len() && tau > taus[id] * (1.0 + 1e-9);
+                            out.push(Node { case: depths[id], weight, depth_m: taus[id] / c_per_m.max(1e-9), beyond_deepest });
                         }
                     }
                 }
@@ -381,9 +385,26 @@ impl Departure<'_> {
                     m
                 }
             };
+            // Deeper than twice the water's deepest case (in optical depth): the departure fades
+            // as the simulator's own polarization does from there (held without end, it would
+            // outlive the field's polarization and lock a sun pattern onto a diffuse deep field;
+            // up to twice it is held, the extrapolation the leave-depth-out check measured).
+            let fade = if n.beyond_deepest && self.depth_m > 2.0 * n.depth_m {
+                let z = n.case.sun_zenith_deg.to_radians();
+                let (sa, ca) = sun_az.sin_cos();
+                let sun = Vector3::new(z.sin() * ca, z.sin() * sa, -z.cos());
+                let dolp = |depth_m: f64| {
+                    let s = crate::sky::stokes(&mean(sun, depth_m, v), &l, &r);
+                    if s[0] > 0.0 { s[1].hypot(s[2]) / s[0] } else { 0.0 }
+                };
+                let p_from = dolp(2.0 * n.depth_m);
+                if p_from > 0.0 { (dolp(self.depth_m) / p_from).clamp(0.0, 1.0) } else { 0.0 }
+            } else {
+                1.0
+            };
             let t = n.case.qu_at(theta, phi);
-            dq += n.weight * (t[0] - m[0]);
-            du += n.weight * (t[1] - m[1]);
+            dq += n.weight * fade * (t[0] - m[0]);
+            du += n.weight * fade * (t[1] - m[1]);
         }
         let (mut q2, mut u2) = (q + scale * i * dq, u + scale * i * du);
         let p = q2.hypot(u2);

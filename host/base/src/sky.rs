@@ -476,6 +476,15 @@ impl<'a> SeaField<'a> {
         SeaField { sea, water, depth_m, pos_ne_m, t_s, k_sun, direct, mean_beam, sky_beams, level, table, clear_sky_beams }
     }
 
+    /// A flat sea under a clear sky (the default of the simulations): the sunbeam and the clear
+    /// sky's skylight refracted through the flat surface, with the departure table when
+    /// `water.polarization_table`.
+    pub fn calm_clear(sun_ned: Vector3<f64>, water: Water, depth_m: f64) -> SeaField<'static> {
+        static CALM: std::sync::OnceLock<crate::sea::Sea> = std::sync::OnceLock::new();
+        let calm = CALM.get_or_init(|| crate::sea::Sea::new(crate::sea::SeaConfig::wind(0.0), 0));
+        SeaField::new(sun_ned, SkyKind::Clear.light(0.0, 0), calm, water, depth_m, (0.0, 0.0), 0.0)
+    }
+
     /// The same field with another departure table (None: pure single scattering), e.g. one
     /// with cases left out for a leave-one-out check.
     pub fn with_table(mut self, table: Option<&'a crate::osoaa::Table>) -> Self {

@@ -15,7 +15,7 @@ use serde::Serialize;
 use subnav_core::compass;
 use subnav_core::ephemeris::{self, Atmosphere, Observer};
 
-use super::montecarlo::{T2020_US, T2100_US, compass_config, sun_ned};
+use super::montecarlo::{T2020_US, T2100_US, compass_config_for, sun_ned};
 use subnav_base::sky::{self as sim, Field, SensorErrors, Water};
 
 /// One measured sun direction (in air, NED azimuth from north clockwise, apparent elevation).
@@ -188,7 +188,10 @@ pub struct GeoResult {
 pub fn run(cfg: &GeoConfig) -> GeoResult {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let units = sim::default_units(cfg.units);
-    let ccfg = compass_config(&cfg.water, cfg.tilt_sigma_rad);
+    // The single-scattering world (closed-form field, single-scattering solver): the measured
+    // sun's elevation is what geolocation uses, and the real field's departure pulls it (not
+    // re-measured in the OSOAA-corrected field).
+    let ccfg = compass_config_for(&Water { polarization_table: false, ..cfg.water }, cfg.tilt_sigma_rad);
     let mut errors = Vec::new();
     let mut samples = 0usize;
     let hn = Normal::new(0.0, cfg.heading_sigma_rad.max(0.0)).unwrap_or(Normal::new(0.0, 0.0).expect("zero sigma"));

@@ -1,7 +1,10 @@
 //! Monte Carlo of the compass heading error on the simulator: random instants 2020-2100 and
 //! places (|lat| <= 60 deg) with the sun's apparent elevation in a band, random attitude, fresh
 //! calibration residuals and noise each draw; the full `subnav_core::compass::solve` chain
-//! (counts -> Stokes -> sun vector -> tilt -> ephemeris -> heading).
+//! (counts -> Stokes -> sun vector -> tilt -> ephemeris -> heading). The calm default is a flat
+//! sea under a clear sky with the real field's departure from single scattering (OSOAA's table,
+//! [`calm_field`]), which the head's solver models; without the table (`Water::
+//! polarization_table` off) the closed-form single-scattering field and solver.
 //!
 //! Real seas ([`McConfig::sea`]): each session is one instant and place, a moving sea of its
 //! own (`subnav_base::sea`, wind direction random) under a sky kind, a head at the depth
@@ -86,22 +89,21 @@ pub fn turbid_water(turbidity: f64) -> Water {
     Water { c_per_m: w.c_per_m * turbidity, b_per_m: w.b_per_m * turbidity, kd_per_m: w.kd_per_m * turbidity, ..w }
 }
 
-/// Compass configuration matching the simulated head (`subnav_core::head::compass_config`).
+/// Compass configuration matching the simulated head (`subnav_core::head::compass_config`:
+/// the model departure, the azimuth at the ephemeris's elevation, the OSOAA departure table).
 pub fn compass_config(water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
-    CompassConfig {
-        min_s0: 50.0,
-        n_water: water.n_water as f32,
-        tilt_sigma_rad: tilt_sigma_rad as f32,
-        ..subnav_core::head::compass_config()
-    }
+    compass_config_with(subnav_core::head::compass_config(), water, tilt_sigma_rad)
 }
 
-/// Issue 35's compass settings (`subnav_core::head::compass_config_departure`: the model
-/// departure, the azimuth at the ephemeris's elevation, the OSOAA departure table) for the
-/// simulated head: what the moving-sea runs use, whose field (`subnav_base::sky::SeaField`)
-/// carries the real field's departure from single scattering.
-pub fn compass_config_real_field(water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
-    CompassConfig { ..compass_config_with(subnav_core::head::compass_config_departure(), water, tilt_sigma_rad) }
+/// The compass for a field that is single scattering by construction (`Water::
+/// polarization_table` off): the single-scattering solver
+/// (`subnav_core::head::compass_config_single_scattering`).
+pub fn compass_config_for(water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
+    if water.polarization_table {
+        compass_config(water, tilt_sigma_rad)
+    } else {
+        compass_config_with(subnav_core::head::compass_config_single_scattering(), water, tilt_sigma_rad)
+    }
 }
 
 fn compass_config_with(base: CompassConfig, water: &Water, tilt_sigma_rad: f64) -> CompassConfig {
@@ -168,6 +170,17 @@ pub fn draw_sun<R: Rng>(rng: &mut R, lo_deg: f64, hi_deg: f64) -> (i64, Observer
     }
 }
 
+/// The field of a calm, clear day: a flat sea under a clear sky with the real field's departure
+/// from single scattering (`SeaField::calm_clear`), or the closed-form single-scattering
+/// `Field` when the water has no departure table.
+pub fn calm_field<R: Rng>(sun_ned: Vector3<f64>, water: Water, depth_m: f64, rng: &mut R) -> Box<dyn sim::LightField> {
+    if water.polarization_table {
+        Box::new(SeaField::calm_clear(sun_ned, water, depth_m))
+    } else {
+        Box::new(Field::new(sun_ned, water, depth_m, rng))
+    }
+}
+
 pub fn sun_ned(p: &ephemeris::SunPosition) -> Vector3<f64> {
     let (el, az) = (p.apparent_elevation_rad() as f64, p.azimuth_rad as f64);
     Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), -el.sin())
@@ -179,19 +192,19 @@ pub fn run(cfg: &McConfig) -> McResult {
     }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let units = sim::default_units(cfg.units);
-    let ccfg = compass_config(&cfg.water, cfg.tilt_sigma_rad);
+    let ccfg = compass_config_for(&cfg.water, cfg.tilt_sigma_rad);
     let mut errs = Vec::new(); // (error rad, sigma rad, elevation deg)
     let mut no_fix = BTreeMap::new();
     let mut dolp_sum = 0.0;
     let mut dolp_n = 0usize;
     for _ in 0..cfg.draws {
         let (t, obs, p) = draw_sun(&mut rng, cfg.min_elevation_deg, cfg.max_elevation_deg);
-        let field = Field::new(sun_ned(&p), cfg.water, cfg.depth_m, &mut rng);
+        let field = calm_field(sun_ned(&p), cfg.water, cfg.depth_m, &mut rng);
         let mt = cfg.max_tilt_deg.to_radians();
         let (roll, pitch, yaw) = (rng.random_range(-mt..=mt), rng.random_range(-mt..=mt), rng.random_range(0.0..std::f64::consts::TAU));
         let r_nb = Rotation3::from_euler_angles(roll, pitch, yaw);
         let cal: Vec<_> = units.iter().map(|u| sim::true_channels(u, &cfg.errors, &mut rng)).collect();
-        let counts = sim::counts(&field, &r_nb, &units, &cal, &cfg.errors, &mut rng);
+        let counts = sim::counts(field.as_ref(), &r_nb, &units, &cal, &cfg.errors, &mut rng);
         let accel = sim::accel(&r_nb, cfg.tilt_sigma_rad, &mut rng);
         let input = CompassInput {
             counts: &counts,
@@ -226,11 +239,7 @@ pub fn elevation_band_deg(cfg: &McConfig, sky: SkyKind) -> (f64, f64) {
 fn run_sea(cfg: &McConfig, sr: &SeaRun) -> McResult {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let units = sim::default_units(cfg.units);
-    let ccfg = if cfg.water.polarization_table {
-        compass_config_real_field(&cfg.water, cfg.tilt_sigma_rad)
-    } else {
-        compass_config(&cfg.water, cfg.tilt_sigma_rad)
-    };
+    let ccfg = compass_config_for(&cfg.water, cfg.tilt_sigma_rad);
     let per = sr.scored.max(1);
     let sessions = cfg.draws.div_ceil(per);
     let dt = 1.0 / sr.rate_hz.max(0.1);
@@ -361,14 +370,17 @@ mod tests {
     use super::*;
 
     /// Smaller version of the documented 1,000-draw run (docs/PERFORMANCE.md): 10 m, clear water,
-    /// sun 20-70 deg, realistic noise. The heading RMSE must meet the issue's 0.2 deg.
+    /// sun 20-70 deg, realistic noise, in the field with the real (OSOAA) field's polarization.
+    /// The heading RMSE meets issue 35's clear-water 0.5 deg and >= 90 % of the errors are inside
+    /// the reported 2 sigma; a low sun whose skylight pulls the measured elevation too far is
+    /// refused as `Inconsistent` (the only no-fix reason allowed here), never a confident guess.
     #[test]
     fn heading_rmse_small_monte_carlo() {
         let r = run(&McConfig { draws: 150, seed: 7, ..McConfig::default() });
-        assert!(r.fixes >= 145, "{r:?}");
-        assert!(r.rmse_deg <= 0.2, "heading RMSE {} deg: {r:?}", r.rmse_deg);
-        // The reported sigma is honest: most errors inside 2 sigma.
-        assert!(r.within_2_sigma > 0.85, "{r:?}");
+        assert!(r.fixes >= 120, "{r:?}");
+        assert!(r.no_fix.keys().all(|k| k == "Inconsistent"), "{r:?}");
+        assert!(r.rmse_deg <= 0.5, "heading RMSE {} deg: {r:?}", r.rmse_deg);
+        assert!(r.within_2_sigma >= 0.9, "{r:?}");
     }
 
     /// Turbid, deep water: DoLP collapses and the compass says so instead of guessing.
@@ -428,7 +440,7 @@ mod tests {
     fn blocked_sun_gives_no_fix() {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let units = sim::default_units(8);
-        let ccfg = compass_config_real_field(&Water::clear(), 0.0);
+        let ccfg = compass_config(&Water::clear(), 0.0);
         let sea = Sea::new(SeaConfig::wind(5.0), 3);
         let blocked = SkyKind::PartlyCloudy.light(0.0, 0);
         let blocked = subnav_base::sky::SkyLight { direct: 0.03, ..blocked };

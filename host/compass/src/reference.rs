@@ -427,8 +427,8 @@ pub struct ReferenceConfig {
     pub tilt_sigma_rad: f64,
     pub errors: SensorErrors,
     pub seed: u64,
-    /// Run the head's own solver settings (`head::compass_config`: pure single scattering, as
-    /// the firmware runs it) instead of issue 35's (`head::compass_config_departure`).
+    /// Run the single-scattering solver (`head::compass_config_single_scattering`, the head's
+    /// before issue 35) instead of the head's (`head::compass_config`).
     pub single_scattering_solver: bool,
     /// The AoP departure table issue 35's solver subtracts (`subnav_core::compass::departure`).
     pub departure: DepartureTable,
@@ -495,9 +495,12 @@ pub fn max_tilt_on_grid_deg(field: &ReferenceField) -> f64 {
 pub fn run(field: &ReferenceField, cfg: &ReferenceConfig) -> ReferenceResult {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let units = sim::default_units(cfg.units);
-    // The head's settings (the firmware's) or issue 35's (`head::compass_config_departure`).
-    let base =
-        if cfg.single_scattering_solver { subnav_core::head::compass_config() } else { subnav_core::head::compass_config_departure() };
+    // The head's settings (the firmware's) or the single-scattering solver's.
+    let base = if cfg.single_scattering_solver {
+        subnav_core::head::compass_config_single_scattering()
+    } else {
+        subnav_core::head::compass_config()
+    };
     let host = compass_config(&sim::Water::clear(), cfg.tilt_sigma_rad);
     // n = 1.34: OSOAA's index (README).
     let aop_departure: Option<&'static compass::departure::AopDeparture> = match cfg.departure {

@@ -43,7 +43,7 @@ use nalgebra::{Matrix2, Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector2, Ve
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use subnav_base::sky::{self, Field, Water};
+use subnav_base::sky::{self, Water};
 use subnav_base::trajectory::{RigMotion, RigStep, Trajectory};
 use subnav_core::head;
 use subnav_wire::{
@@ -357,11 +357,14 @@ impl Site {
 }
 
 /// Angle of polarization (rad, in each unit's frame) the sky model predicts at `t_s` of the
-/// sequence for every unit.
+/// sequence for every unit: the simulator's mean field at the site (a flat sea, a clear sky,
+/// single scattering with the OSOAA radiative-transfer departure, `SeaField::calm_clear`), as a
+/// real procedure would predict its site's sky with a radiative-transfer run. The SIL's rig
+/// sky is that same field, so the calibration is checked in a sky it models exactly; its
+/// error against a real sky is not measured here.
 fn predicted_aop(site: &Site, traj: &Trajectory, t_s: f64) -> Vec<f64> {
     let sc = Scenario { start_utc_unix_us: site.start_utc_unix_us, lat_deg: site.lat_deg, lon_deg: site.lon_deg, ..Scenario::default() };
-    let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let field = Field::new(sc.sun_ned(t_s), Water::clear(), site.depth_m, &mut rng);
+    let field = sky::SeaField::calm_clear(sc.sun_ned(t_s), Water::clear(), site.depth_m);
     let r_nb = traj.at(t_s).att_nb.to_rotation_matrix();
     let v3 = |x: [f32; 3]| Vector3::new(f64::from(x[0]), f64::from(x[1]), f64::from(x[2]));
     head::polarization_units()
@@ -370,7 +373,7 @@ fn predicted_aop(site: &Site, traj: &Trajectory, t_s: f64) -> Vec<f64> {
             Some(u) => {
                 let d = r_nb * v3(u.view_body);
                 let a = r_nb * v3(u.axis0_body);
-                let s = sky::stokes(&field.radiance(d), &a, &d.cross(&a));
+                let s = sky::stokes(&sky::LightField::radiance(&field, d), &a, &d.cross(&a));
                 0.5 * s[2].atan2(s[1])
             }
             None => 0.0,

@@ -45,8 +45,8 @@ use serde::Serialize;
 use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
 use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp, PassEnd};
-use subnav_firmware::store::NoStore;
 use subnav_firmware::sensors::{SensorFault, SensorSuite};
+use subnav_firmware::store::NoStore;
 use subnav_link::record::session::Session;
 use subnav_link::record::{Loaded, read_bytes};
 use subnav_wire::{

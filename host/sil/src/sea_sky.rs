@@ -2,13 +2,13 @@
 //! the sky kind (`subnav_base::sky::SkyKind`), each with an optional change mid-dive, and the
 //! polarization units' photodiode source for the ADS1115 models under them.
 //!
-//! The default plan (calm, clear, no change) keeps the flat-surface field without skylight
-//! (`sky::Field`) the scenarios had before, so their figures do not move. Any other plan uses
-//! `sky::SeaField`: the sunbeam refracted through the moving sea along each unit's line of
-//! sight. The four ADCs read their units within a few milliseconds of each other; under a sea
-//! the Stokes of all units are computed once per 5-ms slot and shared (the sea moves little in
-//! 5 ms; each ADC still draws its own photodiode noise at its own conversion). The default
-//! plan computes them at every conversion, as before.
+//! Every plan uses `sky::SeaField`: the sunbeam (and the sky's light) refracted through the sea
+//! along each unit's line of sight, with the real field's departure from single scattering
+//! (OSOAA's table) when the water has it (`Water::polarization_table`, the default); the
+//! default plan (calm, clear, no change) is a flat sea under a clear sky. The four ADCs read
+//! their units within a few milliseconds of each other; the Stokes of all units are computed
+//! once per 5-ms slot and shared (the sea moves little in 5 ms; each ADC still draws its own
+//! photodiode noise at its own conversion).
 
 use std::sync::{Arc, Mutex};
 
@@ -16,7 +16,7 @@ use nalgebra::{Rotation3, Vector3};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use subnav_base::sea::{Sea, SeaConfig};
-use subnav_base::sky::{self as polar, Field, SeaField, SensorErrors, SkyKind, Water};
+use subnav_base::sky::{self as polar, SeaField, SensorErrors, SkyKind, Water};
 use subnav_base::trajectory::Trajectory;
 use subnav_core::compass::{CHANNELS, ChannelCal, UnitModel};
 
@@ -38,7 +38,7 @@ pub struct SeaPlan {
 }
 
 impl SeaPlan {
-    /// Calm and clear with no change: the flat model of before.
+    /// Calm and clear with no change.
     pub fn is_default_flat(&self) -> bool {
         self.wind_mps == 0.0 && self.sky == SkyKind::Clear && self.wind_change.is_none() && self.sky_change.is_none()
     }
@@ -112,10 +112,9 @@ impl PolarizationSource {
     }
 
     /// Stokes of every unit and the light level at `t_us` (shared within a slot).
-    fn stokes(&self, t_us: u64, rng: &mut ChaCha8Rng) -> (Vec<[f64; 3]>, f64) {
+    fn stokes(&self, t_us: u64) -> (Vec<[f64; 3]>, f64) {
         let key = t_us / SLOT_US;
-        let shared = !self.plan.is_default_flat();
-        if let (true, Ok(g)) = (shared, self.slot.lock()) {
+        if let Ok(g) = self.slot.lock() {
             if let Some((_, s, l)) = g.as_ref().filter(|(k, _, _)| *k == key) {
                 return (s.clone(), *l);
             }
@@ -124,17 +123,12 @@ impl PolarizationSource {
         let truth = self.traj.at(t);
         let r_nb: Rotation3<f64> = truth.att_nb.to_rotation_matrix();
         let depth = truth.pos_ned_m.z.max(0.0);
-        let (s, level) = if self.plan.is_default_flat() {
-            let field = Field::new((self.sun_ned)(t), self.water, depth, rng);
-            (polar::unit_stokes(&field, &r_nb, &self.units), 1.0)
-        } else {
-            let sea = if self.plan.wind_change.is_some_and(|(tc, _)| t >= tc) { &self.seas[1] } else { &self.seas[0] };
-            let light = self.plan.sky_at(t).light(t, self.cloud_seed);
-            let pos = (truth.pos_ned_m.x, truth.pos_ned_m.y);
-            let field = SeaField::new((self.sun_ned)(t), light, sea, self.water, depth, pos, t);
-            (polar::unit_stokes(&field, &r_nb, &self.units), polar::LightField::light_level(&field))
-        };
-        if let (true, Ok(mut g)) = (shared, self.slot.lock()) {
+        let sea = if self.plan.wind_change.is_some_and(|(tc, _)| t >= tc) { &self.seas[1] } else { &self.seas[0] };
+        let light = self.plan.sky_at(t).light(t, self.cloud_seed);
+        let pos = (truth.pos_ned_m.x, truth.pos_ned_m.y);
+        let field = SeaField::new((self.sun_ned)(t), light, sea, self.water, depth, pos, t);
+        let (s, level) = (polar::unit_stokes(&field, &r_nb, &self.units), polar::LightField::light_level(&field));
+        if let Ok(mut g) = self.slot.lock() {
             *g = Some((key, s.clone(), level));
         }
         (s, level)
@@ -149,7 +143,7 @@ impl PolarizationSource {
         err: &SensorErrors,
         rng: &mut ChaCha8Rng,
     ) -> Option<[i16; 4]> {
-        let (s, level) = self.stokes(t_us, rng);
+        let (s, level) = self.stokes(t_us);
         let all = polar::counts_from_stokes(&s, level, true_cal, err, rng);
         all.get(u).copied()
     }

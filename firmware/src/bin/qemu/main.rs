@@ -53,10 +53,10 @@ impl ByteLink for PipeLink {
 
 use subnav_firmware::app::SERIAL_POLL_US;
 use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
-use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::bus_bridge::{BridgeClient, BridgeDelay, BridgeI2c, BridgePin, BridgeSpi, BridgeUart, ByteLink};
 use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
+use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, NoStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink};

@@ -113,8 +113,8 @@ pub struct SimulateArgs {
     /// must keep the units on the file's view-zenith grid.
     #[arg(long, default_value_t = 5.0, value_parser = super::args::f64_in(0.0..=45.0))]
     pub max_tilt_deg: f64,
-    /// With --reference-field: the head's own solver settings (pure single scattering, as the
-    /// firmware runs it) instead of the model-departure solver (`head::compass_config_departure`).
+    /// With --reference-field: the single-scattering solver (the head's before issue 35,
+    /// `head::compass_config_single_scattering`) instead of the head's (`head::compass_config`).
     #[arg(long, requires = "reference_field")]
     pub single_scattering_solver: bool,
     /// With --reference-field: the AoP departure table the solver subtracts: built from the
@@ -679,12 +679,12 @@ fn emit_csv(cfg: &montecarlo::McConfig, path: &std::path::Path) -> Result<()> {
     writeln!(f, "{header},true_yaw_deg")?;
     for _ in 0..cfg.draws {
         let (t, obs, p) = montecarlo::draw_sun(&mut rng, cfg.min_elevation_deg, cfg.max_elevation_deg);
-        let field = sim::Field::new(montecarlo::sun_ned(&p), cfg.water, cfg.depth_m, &mut rng);
+        let field = montecarlo::calm_field(montecarlo::sun_ned(&p), cfg.water, cfg.depth_m, &mut rng);
         let mt = cfg.max_tilt_deg.to_radians();
         let (roll, pitch, yaw) = (rng.random_range(-mt..=mt), rng.random_range(-mt..=mt), rng.random_range(0.0..std::f64::consts::TAU));
         let r_nb = Rotation3::from_euler_angles(roll, pitch, yaw);
         let cal: Vec<_> = units.iter().map(|u| sim::true_channels(u, &cfg.errors, &mut rng)).collect();
-        let counts = sim::counts(&field, &r_nb, &units, &cal, &cfg.errors, &mut rng);
+        let counts = sim::counts(field.as_ref(), &r_nb, &units, &cal, &cfg.errors, &mut rng);
         let a = sim::accel(&r_nb, cfg.tilt_sigma_rad, &mut rng);
         let mut row = format!(
             "{t},{:.7},{:.7},{:.6},{:.6},{:.6}",
