@@ -87,6 +87,10 @@ fn parse_rows(path: &Path, min_cols: usize) -> Result<Vec<Vec<f64>>> {
     Ok(rows)
 }
 
+/// Largest frame or feature id in `tracks.csv` (2^53: every whole number up to it is exact in
+/// the CSV's f64).
+pub const MAX_ID: u64 = 1 << 53;
+
 impl Dataset {
     pub fn read_dir(dir: &Path) -> Result<Self> {
         let imu: Vec<ImuSample> = parse_rows(&dir.join("imu.csv"), 7)?
@@ -99,12 +103,21 @@ impl Dataset {
         let mut frames: Vec<Frame> = Vec::new();
         let stereo = if !dir.join("tracks.csv").exists() && dir.join("stereo.csv").exists() { read_stereo_list(dir)? } else { Vec::new() };
         let tracks = if stereo.is_empty() { parse_rows(&dir.join("tracks.csv"), 7)? } else { Vec::new() };
-        for r in tracks {
-            let fid = r[1] as u64;
+        // Ids are whole numbers an f64 holds exactly (a negative frame number or a 1e30 id
+        // became 0 or saturated, and the run reported 0 poses as a success).
+        let id = |v: f64, what: &str, row: usize| -> Result<u64> {
+            if v >= 0.0 && v.fract() == 0.0 && v <= MAX_ID as f64 {
+                Ok(v as u64)
+            } else {
+                bail!("{}: data row {}: {what} must be a whole number in 0..={MAX_ID}, got {v}", dir.join("tracks.csv").display(), row + 1)
+            }
+        };
+        for (i, r) in tracks.iter().enumerate() {
+            let (fid, feature) = (id(r[1], "frame_id", i)?, id(r[2], "feature_id", i)?);
             let z = Vector4::new(r[3], r[4], r[5], r[6]);
             match frames.last_mut() {
-                Some(f) if f.frame_id == fid => f.obs.push((r[2] as u64, z)),
-                _ => frames.push(Frame { t_s: r[0], frame_id: fid, obs: vec![(r[2] as u64, z)] }),
+                Some(f) if f.frame_id == fid => f.obs.push((feature, z)),
+                _ => frames.push(Frame { t_s: r[0], frame_id: fid, obs: vec![(feature, z)] }),
             }
         }
         let depth = parse_rows(&dir.join("depth.csv"), 2)?.into_iter().map(|r| DepthReading { t_s: r[0], depth_m: r[1] }).collect();

@@ -150,9 +150,9 @@ impl Drop for AtomicFile {
 }
 
 /// Write `bytes` to `target` atomically (temporary file, then rename; a device in place).
-pub fn write_atomic(target: &Path, bytes: &[u8]) -> Result<()> {
-    let mut f = AtomicFile::create(target)?;
-    f.write_all(bytes)?;
+pub fn write_atomic(target: impl AsRef<Path>, bytes: impl AsRef<[u8]>) -> Result<()> {
+    let mut f = AtomicFile::create(target.as_ref())?;
+    f.write_all(bytes.as_ref())?;
     f.commit()?;
     Ok(())
 }

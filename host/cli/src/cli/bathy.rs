@@ -46,8 +46,9 @@ pub struct RunArgs {
     /// Output directory (created).
     #[arg(long)]
     pub out: PathBuf,
-    /// Survey altitude for submap/matching scales (default: estimated from near-nadir beams).
-    #[arg(long)]
+    /// Survey altitude for submap/matching scales, m (0..=12000; default: estimated from
+    /// near-nadir beams).
+    #[arg(long, allow_hyphen_values = true, value_parser = args::f64_positive_upto(12_000.0))]
     pub altitude_m: Option<f64>,
     /// Skip PNG figures.
     #[arg(long)]
@@ -104,7 +105,7 @@ fn write_outputs(
     let g1 = pipeline::bathymetry(survey, Some(&out.offsets_spring), cfg.grid_cell_m).context("no soundings to grid")?;
     g0.write_esri_ascii(&dir.join("bathymetry_dead_reckoning.asc"))?;
     g1.write_esri_ascii(&dir.join("bathymetry_corrected.asc"))?;
-    std::fs::write(dir.join("closures.json"), serde_json::to_string_pretty(&out.attempts)?)?;
+    subnav_link::output::write_atomic(dir.join("closures.json"), serde_json::to_string_pretty(&out.attempts)?)?;
     if plots {
         let red = RGBColor(220, 30, 30);
         let white = RGBColor(255, 255, 255);
@@ -165,6 +166,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 }
 
 fn run_csv(args: RunArgs, format: Format) -> Result<ExitCode> {
+    subnav_link::output::refuse_dir_holding_input("--out", &args.out, &[&args.soundings, &args.nav])?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let survey = io::read_survey(&args.soundings, &args.nav)?;
     let alt = match args.altitude_m {
@@ -312,7 +314,7 @@ fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
     };
     let per_seed: Vec<serde_json::Value> = evals.iter().map(|(s, e)| serde_json::json!({"seed": s, "evaluation": e})).collect();
     let doc = serde_json::json!({"pooled": p, "per_seed": per_seed});
-    std::fs::write(args.out.join("evaluation.json"), serde_json::to_string_pretty(&doc)?)?;
+    subnav_link::output::write_atomic(args.out.join("evaluation.json"), serde_json::to_string_pretty(&doc)?)?;
     match format {
         Format::Json => println!("{}", serde_json::to_string(&serde_json::json!({"pooled": p}))?),
         Format::Text => {

@@ -137,7 +137,7 @@ pub fn finish(bridge: Option<Arc<Bridge>>, o: &BridgeOpts) -> Result<()> {
         eprintln!("{l}");
     }
     if let Some(p) = &o.mavlink_summary {
-        std::fs::write(p, serde_json::to_string_pretty(&s)?).with_context(|| format!("writing {}", p.display()))?;
+        subnav_link::output::write_atomic(p, serde_json::to_string_pretty(&s)?).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }

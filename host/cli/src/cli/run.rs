@@ -51,8 +51,8 @@ pub struct Args {
     /// Write the truth here (CSV `t_s,n_m,e_m,d_m,yaw_rad` at 10 Hz, for `subnav report --truth`).
     #[arg(long)]
     pub truth: Option<PathBuf>,
-    /// Wall-clock limit for a QEMU run, s.
-    #[arg(long, default_value_t = 1800)]
+    /// Wall-clock limit for a QEMU run, s (1..=604800).
+    #[arg(long, default_value_t = 1800, value_parser = super::args::int_in(1u64..=super::args::MAX_TIMEOUT_S))]
     pub timeout_s: u64,
     /// No progress bar.
     #[arg(long)]
@@ -66,8 +66,8 @@ pub struct Args {
     #[command(flatten)]
     pub mavlink: super::mavlink::MavlinkArgs,
     /// Native runs: at most this many seconds of dive per second of wall time (e.g. 1 to watch
-    /// in real time; default: as fast as it goes). The results are the same at any speed.
-    #[arg(long, requires = "native", value_parser = super::args::f64_positive_upto(1e6))]
+    /// in real time; default: as fast as it goes; 0.1..=1e6). The results are the same at any speed.
+    #[arg(long, requires = "native", value_parser = super::args::f64_in(super::args::MIN_SPEED..=1e6))]
     pub speed: Option<f64>,
     /// Native runs at a --speed: the telemetry reaches the host this long after the head wrote
     /// it, ms (a serial or acoustic link's delay; the bridge stamps the time of validity).
@@ -179,11 +179,25 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    if let (Some(_), Some(elf)) = (&args.seeds, &args.elf) {
+        bail!("--elf {} with --seeds: seeded runs are native only; drop --elf or --seeds", elf.display());
+    }
     let inputs: Vec<&std::path::Path> = args.scenario.as_deref().into_iter().chain(args.elf.as_deref()).collect();
-    for (flag, out) in [("--record", &args.record), ("--truth", &args.truth)] {
-        if let Some(p) = out {
-            subnav_link::output::refuse_input_as_output(flag, p, &inputs)?;
-        }
+    // The outputs, with the files --report writes where --record / --truth do not say.
+    let report_rec = args.report.as_ref().filter(|_| args.record.is_none()).map(|d| d.join("dive.snrec"));
+    let report_truth = args.report.as_ref().filter(|_| args.truth.is_none()).map(|d| d.join("truth.csv"));
+    let outputs: Vec<(&str, &std::path::Path)> = [
+        ("--record", args.record.as_deref()),
+        ("--truth", args.truth.as_deref()),
+        ("--report", report_rec.as_deref()),
+        ("--report", report_truth.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(f, p)| Some((f, p?)))
+    .collect();
+    subnav_link::output::check_outputs(&outputs, &inputs)?;
+    if let Some(dir) = &args.report {
+        subnav_link::output::refuse_dir_holding_input("--report", dir, &inputs)?;
     }
     let sc = load(&args)?;
     if let Some(seeds) = &args.seeds {
@@ -290,7 +304,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
-        std::fs::write(p, truth_csv(&sc, 0.1)).with_context(|| format!("writing the truth {}", p.display()))?;
+        subnav_link::output::write_atomic(p, truth_csv(&sc, 0.1).as_bytes()).with_context(|| format!("writing the truth {}", p.display()))?;
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&result)?),
