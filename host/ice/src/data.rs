@@ -87,9 +87,8 @@ fn parse_rows(path: &Path, min_cols: usize) -> Result<Vec<Vec<f64>>> {
     Ok(rows)
 }
 
-/// Largest frame or feature id in `tracks.csv` (2^53: every whole number up to it is exact in
-/// the CSV's f64).
-pub const MAX_ID: u64 = 1 << 53;
+/// Frame and feature ids in `tracks.csv` are below this (2^64: they are `u64`).
+const MAX_ID_EXCLUSIVE: f64 = 18_446_744_073_709_551_616.0;
 
 impl Dataset {
     pub fn read_dir(dir: &Path) -> Result<Self> {
@@ -103,13 +102,18 @@ impl Dataset {
         let mut frames: Vec<Frame> = Vec::new();
         let stereo = if !dir.join("tracks.csv").exists() && dir.join("stereo.csv").exists() { read_stereo_list(dir)? } else { Vec::new() };
         let tracks = if stereo.is_empty() { parse_rows(&dir.join("tracks.csv"), 7)? } else { Vec::new() };
-        // Ids are whole numbers an f64 holds exactly (a negative frame number or a 1e30 id
-        // became 0 or saturated, and the run reported 0 poses as a success).
+        // Ids are whole numbers that fit a u64 (a negative frame number or a 1e30 id became 0
+        // or saturated, and the run reported 0 poses as a success).
         let id = |v: f64, what: &str, row: usize| -> Result<u64> {
-            if v >= 0.0 && v.fract() == 0.0 && v <= MAX_ID as f64 {
+            if v >= 0.0 && v.fract() == 0.0 && v < MAX_ID_EXCLUSIVE {
                 Ok(v as u64)
             } else {
-                bail!("{}: data row {}: {what} must be a whole number in 0..={MAX_ID}, got {v}", dir.join("tracks.csv").display(), row + 1)
+                bail!(
+                    "{}: data row {}: {what} must be a whole number in 0..={}, got {v}",
+                    dir.join("tracks.csv").display(),
+                    row + 1,
+                    u64::MAX
+                )
             }
         };
         for (i, r) in tracks.iter().enumerate() {

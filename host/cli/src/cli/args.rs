@@ -119,7 +119,10 @@ pub fn parse_seeds(s: &str) -> Result<Seeds, String> {
         return Err(format!("{s:?} is an empty range; {FORMS}"));
     }
     if end_exclusive - first > MAX_SEEDS {
-        return Err(format!("{s:?} holds {} seeds, more than the {MAX_SEEDS} one command runs (each seed is a whole run)", end_exclusive - first));
+        return Err(format!(
+            "{s:?} holds {} seeds, more than the {MAX_SEEDS} one command runs (each seed is a whole run)",
+            end_exclusive - first
+        ));
     }
     Ok(Seeds { first, count: end_exclusive - first })
 }

@@ -382,10 +382,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             if !(duration_s > 10.0 && duration_s.is_finite() && (0.0..1.0).contains(&abnormal_fraction)) {
                 bail!("--duration-s must be > 10 and --abnormal-fraction in [0, 1)");
             }
-            let outputs: Vec<(&str, &Path)> = [("--out", Some(out.as_path())), ("--truth", truth.as_deref())]
-                .into_iter()
-                .filter_map(|(f, p)| Some((f, p?)))
-                .collect();
+            let outputs: Vec<(&str, &Path)> =
+                [("--out", Some(out.as_path())), ("--truth", truth.as_deref())].into_iter().filter_map(|(f, p)| Some((f, p?))).collect();
             subnav_link::output::check_outputs(&outputs, &[])?;
             let sim = simulate(&SimConfig { seed, duration_s, abnormal_fraction, ..Default::default() });
             let mut log = Vec::new();

@@ -96,7 +96,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 yaw_rad: dive.init_yaw_rad as f32,
                 vel_ned_mps: t0.vel_ned_mps.map(|v| v as f32),
             };
-            subnav_link::output::write_atomic(&out, replay::write_log(Some(init), &dive.events)).with_context(|| format!("writing {}", out.display()))?;
+            subnav_link::output::write_atomic(&out, replay::write_log(Some(init), &dive.events))
+                .with_context(|| format!("writing {}", out.display()))?;
             if let Some(p) = truth {
                 let mut s = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
                 for t in &dive.truth {

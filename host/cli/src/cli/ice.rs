@@ -254,7 +254,10 @@ fn simulate_runs(args: SimulateArgs, format: Format) -> Result<ExitCode> {
     }
     if let Some(out) = &args.out {
         std::fs::create_dir_all(out)?;
-        subnav_link::output::write_atomic(out.join("results.json"), serde_json::to_string_pretty(&json!({"summary": summary, "runs": all}))?)?;
+        subnav_link::output::write_atomic(
+            out.join("results.json"),
+            serde_json::to_string_pretty(&json!({"summary": summary, "runs": all}))?,
+        )?;
     }
     match format {
         Format::Json => println!("{}", json!({ "summary": summary })),

@@ -12,7 +12,6 @@
 //! Outputs in `--out-dir`: `map.json`, `map.graphml`, `map.png`, `fixes.bin` (COBS frames of
 //! `Downlink` `PositionFix` commands, ready for the downlink; this command does not send them).
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

@@ -198,6 +198,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     subnav_link::output::check_outputs(&outputs, &inputs)?;
     if let Some(dir) = &args.report {
         subnav_link::output::refuse_dir_holding_input("--report", dir, &inputs)?;
+        if let Some(rec) = args.record.as_deref().filter(|p| subnav_link::output::is_special(p)) {
+            bail!("--record {} is not a regular file, and --report reads the recording back; record to a file", rec.display());
+        }
     }
     let sc = load(&args)?;
     if let Some(seeds) = &args.seeds {
@@ -304,7 +307,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
-        subnav_link::output::write_atomic(p, truth_csv(&sc, 0.1).as_bytes()).with_context(|| format!("writing the truth {}", p.display()))?;
+        subnav_link::output::write_atomic(p, truth_csv(&sc, 0.1).as_bytes())
+            .with_context(|| format!("writing the truth {}", p.display()))?;
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&result)?),
