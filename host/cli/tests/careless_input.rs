@@ -562,6 +562,15 @@ fn an_output_directory_holding_an_input_is_refused_before_reading() {
     refused(subnav().args(["ice", "run", "--input"]).arg(d).arg("--out").arg(d), &["--out", "also an input"]);
     refused(subnav().args(["run", "--native"]).arg(d.join("sc.json")).arg("--report").arg(d), &["--report"]);
     assert_eq!(files_in(d), ["dive.snrec", "soundings.csv", "trajectory_corrected.csv"]);
+    // A real dive's recording, reported on into its own directory.
+    let sim = d.join("sim");
+    let (o, e) = run(subnav().args(["report", "simulate", "--duration-s", "30", "--out"]).arg(&sim));
+    assert!(o.status.success(), "{e}");
+    let real = std::fs::read(sim.join("dive.snrec")).unwrap();
+    let before = files_in(&sim);
+    refused(subnav().args(["report", "recording"]).arg(sim.join("dive.snrec")).arg("--out").arg(&sim), &["holds the input"]);
+    assert_eq!(std::fs::read(sim.join("dive.snrec")).unwrap(), real);
+    assert_eq!(files_in(&sim), before);
 }
 
 /// Issue 40 (2): `calibrate head --flash FILE` and `qemu --flash FILE` took any existing file up
