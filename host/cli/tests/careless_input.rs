@@ -640,6 +640,11 @@ fn nonsense_numbers_and_empty_results_are_errors() {
         refused(subnav().args(["compass", "simulate", flag, v]), &[flag]);
     }
     refused(subnav().args(["compass", "geolocate", "--heading-sigma-deg", "-1"]), &["--heading-sigma-deg", "0..=180"]);
+    // A track too short for any fix: no statistics, not "median NaN".
+    refused(
+        subnav().args(["compass", "geolocate", "--trials", "1", "--track-s", "1", "--interval-s", "1"]),
+        &["no trial", "no statistics"],
+    );
     let log = d.join("log.csv");
     assert!(subnav().args(["filter", "simulate", "--duration-s", "20", "--out"]).arg(&log).status().unwrap().success());
     let text = std::fs::read_to_string(&log).unwrap();

@@ -11,7 +11,9 @@
 //! A target that exists and is not a regular file (`/dev/null`, `/dev/full`, a FIFO, a
 //! terminal, any device node) is written in place: renaming a file over it would replace the
 //! device with a regular file. Every write error names the target (`/dev/full: No space left on
-//! device`), so a full device is an error, never a silent success.
+//! device`), so a full device is an error, never a silent success. A symbolic link to a file
+//! stays a link: the file it points to is replaced (`/dev/stdout` redirected to a file is
+//! never renamed over).
 //!
 //! [`refuse_input_as_output`] is the one check that an output path does not name one of the
 //! run's inputs (`export r.snrec --mcap r.snrec`, `run --record scenario.json`), by file
@@ -34,6 +36,9 @@ pub struct AtomicFile {
     tmp: PathBuf,
     file: File,
     published: bool,
+    /// Where the new file is renamed to: the target, or the file a symbolic link at the target
+    /// points to (the link stays a link; `/dev/stdout` is never replaced).
+    rename_to: PathBuf,
     /// The target is not a regular file (a device, a FIFO): written in place, never renamed.
     in_place: bool,
 }
@@ -51,10 +56,17 @@ impl AtomicFile {
                 .write(true)
                 .open(target)
                 .with_context(|| format!("opening {} (not a regular file: written in place)", target.display()))?;
-            return Ok(Self { target: target.to_path_buf(), tmp: target.to_path_buf(), file, published: true, in_place: true });
+            let t = target.to_path_buf();
+            return Ok(Self { target: t.clone(), tmp: t.clone(), file, published: true, rename_to: t, in_place: true });
         }
-        let name = target.file_name().with_context(|| format!("{} is not a file name", target.display()))?;
-        let dir = match target.parent() {
+        // A symbolic link to a file: the file is replaced, the link kept.
+        let is_link = std::fs::symlink_metadata(target).is_ok_and(|m| m.file_type().is_symlink());
+        let rename_to = match target.canonicalize() {
+            Ok(real) if is_link => real,
+            _ => target.to_path_buf(),
+        };
+        let name = rename_to.file_name().with_context(|| format!("{} is not a file name", target.display()))?;
+        let dir = match rename_to.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),
         };
@@ -65,7 +77,7 @@ impl AtomicFile {
             .create_new(true)
             .open(&tmp)
             .with_context(|| format!("creating {} (check the directory {} exists and is writable)", target.display(), dir.display()))?;
-        Ok(Self { target: target.to_path_buf(), tmp, file, published: false, in_place: false })
+        Ok(Self { target: target.to_path_buf(), tmp, file, published: false, rename_to, in_place: false })
     }
 
     /// Whether the target is a device or a FIFO written in place (no temporary file).
@@ -82,7 +94,7 @@ impl AtomicFile {
     /// (the open handle follows the rename). Idempotent.
     pub fn publish(&mut self) -> Result<()> {
         if !self.published {
-            std::fs::rename(&self.tmp, &self.target)
+            std::fs::rename(&self.tmp, &self.rename_to)
                 .with_context(|| format!("moving the new file into place as {}", self.target.display()))?;
             self.published = true;
         }
@@ -349,6 +361,19 @@ mod tests {
         let e = format!("{:#}", write_atomic(&full, b"data").unwrap_err());
         assert!(e.contains(&full.display().to_string()) && e.contains("No space left"), "{e}");
         assert!(is_char_dev(&full));
+    }
+
+    #[test]
+    fn a_symbolic_link_stays_a_link_and_its_file_gets_the_new_contents() {
+        let dir = tempfile::tempdir().unwrap();
+        let real = dir.path().join("real.csv");
+        std::fs::write(&real, b"old").unwrap();
+        let link = dir.path().join("link.csv");
+        std::os::unix::fs::symlink(&real, &link).unwrap();
+        write_atomic(&link, b"new").unwrap();
+        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        assert_eq!(std::fs::read(&real).unwrap(), b"new");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
     }
 
     #[test]

@@ -52,11 +52,11 @@ pub enum Sub {
         /// Write the real-time (fixed-lag) outputs instead of the batch-optimised nodes.
         #[arg(long)]
         realtime: bool,
-        /// Fixed-lag window of the real-time smoother, seconds.
-        #[arg(long, default_value_t = 6.0)]
+        /// Fixed-lag window of the real-time smoother, seconds (> 0, at most a day).
+        #[arg(long, default_value_t = 6.0, allow_hyphen_values = true, value_parser = args::f64_positive_upto(args::MAX_SIM_DURATION_S))]
         lag_s: f64,
-        /// Confidence of the chi-square gate.
-        #[arg(long, default_value_t = 0.99)]
+        /// Confidence of the chi-square gate (in (0, 1): 1e-9..=0.999999999).
+        #[arg(long, default_value_t = 0.99, allow_hyphen_values = true, value_parser = args::f64_in(1e-9..=0.999_999_999))]
         confidence: f64,
         /// Write every gating decision (JSON lines).
         #[arg(long)]
@@ -105,14 +105,15 @@ pub enum Sub {
         /// The seed's fixed chi-square test instead of the adaptive one (for comparison).
         #[arg(long)]
         fixed_gate: bool,
-        /// Confidence of the chi-square gate.
-        #[arg(long, default_value_t = 0.99)]
+        /// Confidence of the chi-square gate (in (0, 1): 1e-9..=0.999999999).
+        #[arg(long, default_value_t = 0.99, allow_hyphen_values = true, value_parser = args::f64_in(1e-9..=0.999_999_999))]
         confidence: f64,
         /// Estimate a range bias per beacon (zero-mean prior, sigma 10 m).
         #[arg(long)]
         range_bias: bool,
         /// Multiply the file's odometry covariances by this (a DVL/INS noise model that is too tight).
-        #[arg(long, default_value_t = 1.0)]
+        /// (> 0, at most 1e6)
+        #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = args::f64_positive_upto(1e6))]
         odometry_cov_scale: f64,
         /// Scale the odometry and range noise to the data (robust variance components) before gating.
         #[arg(long)]
