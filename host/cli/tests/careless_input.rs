@@ -534,6 +534,18 @@ fn two_outputs_that_are_one_file_are_refused() {
     refused(subnav().args(["fgo", "simulate", "--out"]).arg(&new).arg("--truth").arg(d.join("./new.csv")), &["same file"]);
     assert!(!new.exists() && !png.exists());
     assert_eq!(std::fs::read(&x).unwrap(), b"old");
+    // An output that is the reference it is compared with.
+    let field = d.join("field.csv");
+    std::fs::write(&field, "a reference\n").unwrap();
+    refused(
+        subnav()
+            .args(["compass", "field", "--sun-zenith-deg", "30", "--depth-m", "10", "--output"])
+            .arg(&field)
+            .arg("--compare")
+            .arg(&field),
+        &["--output", "also an input"],
+    );
+    assert_eq!(std::fs::read_to_string(&field).unwrap(), "a reference\n");
     // The figure's format comes from its name ("ImageError(Unsupported(...))").
     refused(subnav().args(["compass", "envelope", "--png"]).arg(d.join("fig")), &["--png", "fig", "ending in .png"]);
 }

@@ -522,6 +522,9 @@ fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
             Some(t)
         }
     };
+    if let (Some(out), Some(input)) = (&args.output, &args.compare) {
+        subnav_link::output::refuse_input_as_output("--output", out, &[input])?;
+    }
     // Read the reference first: a bad file is refused before anything is written.
     let reference = match &args.compare {
         Some(p) => {
@@ -534,12 +537,8 @@ fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
     let f = rf::ReferenceField::simulated_with(args.sun_zenith_deg, args.depth_m, args.wind_mps, water, args.seed, table);
     let csv = f.to_csv();
     match &args.output {
-        Some(p) => {
-            // Whole or nothing: a temporary file beside it, renamed over it.
-            let tmp = p.with_extension("csv.partial");
-            std::fs::write(&tmp, csv.as_bytes()).with_context(|| format!("writing {}", tmp.display()))?;
-            std::fs::rename(&tmp, p).with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
-        }
+        // Whole or nothing (a device written in place).
+        Some(p) => subnav_link::output::write_atomic(p, csv)?,
         None => print!("{csv}"),
     }
     if let Some((p, r)) = reference {
