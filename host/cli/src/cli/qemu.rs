@@ -29,8 +29,8 @@ pub struct Args {
     /// QEMU executable.
     #[arg(long, default_value = "qemu-system-arm")]
     pub qemu: PathBuf,
-    /// QEMU -icount shift (virtual ns per instruction = 2^shift).
-    #[arg(long, default_value_t = 3)]
+    /// QEMU -icount shift (virtual ns per instruction = 2^shift; 0..=10, QEMU's range).
+    #[arg(long, default_value_t = 3, value_parser = super::args::int_in(0u8..=10))]
     pub icount_shift: u8,
     /// Run without the simulated sensors (every bus transaction is NACKed).
     #[arg(long)]
