@@ -171,6 +171,10 @@ fn write_nav_unnamed(path: &Path, nav: &[NavSample]) -> Result<()> {
 }
 
 pub fn write_soundings(path: &Path, pings: &[Ping]) -> Result<()> {
+    write_soundings_unnamed(path, pings).with_context(|| format!("writing {}", path.display()))
+}
+
+fn write_soundings_unnamed(path: &Path, pings: &[Ping]) -> Result<()> {
     let mut w = std::io::BufWriter::new(std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?);
     writeln!(w, "t_s,beam_angle_rad,range_m")?;
     for p in pings {

@@ -223,12 +223,17 @@ impl Dataset {
 
     pub fn write_dir(&self, dir: &Path) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        // Every write error names its file.
+        let put = |name: &str, text: String| -> Result<()> {
+            let p = dir.join(name);
+            std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))
+        };
         let mut s = String::from("t_s,gx,gy,gz,ax,ay,az\n");
         for m in &self.imu {
             let (g, a) = (m.gyro_radps, m.acc_mps2);
             let _ = writeln!(s, "{:.6},{:e},{:e},{:e},{:e},{:e},{:e}", m.t_s, g.x, g.y, g.z, a.x, a.y, a.z);
         }
-        std::fs::write(dir.join("imu.csv"), s)?;
+        put("imu.csv", s)?;
         let mut s = String::from("t_s,frame_id,feature_id,ul,vl,ur,vr\n");
         for f in &self.frames {
             for (id, z) in &f.obs {
@@ -236,18 +241,18 @@ impl Dataset {
             }
         }
         if self.frames.iter().any(|f| !f.obs.is_empty()) || !dir.join("stereo.csv").exists() {
-            std::fs::write(dir.join("tracks.csv"), s)?;
+            put("tracks.csv", s)?;
         }
         let mut s = String::from("t_s,depth_m\n");
         for d in &self.depth {
             let _ = writeln!(s, "{:.6},{:.6}", d.t_s, d.depth_m);
         }
-        std::fs::write(dir.join("depth.csv"), s)?;
+        put("depth.csv", s)?;
         let mut s = String::from("t_s,los_mps,peak\n");
         for v in &self.sonar_velocity {
             let _ = writeln!(s, "{:.6},{:e},{:e}", v.t_s, v.los_mps, v.peak);
         }
-        std::fs::write(dir.join("sonar_velocity.csv"), s)?;
+        put("sonar_velocity.csv", s)?;
         let mut s = String::from("t_s,qw,qx,qy,qz,x,y,z,vx,vy,vz\n");
         for t in &self.truth {
             let q = UnitQuaternion::from_matrix(&t.rot);
@@ -258,9 +263,9 @@ impl Dataset {
                 t.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, v.x, v.y, v.z
             );
         }
-        std::fs::write(dir.join("truth.csv"), s)?;
-        std::fs::write(dir.join("camera.json"), serde_json::to_string_pretty(&self.cam)?)?;
-        std::fs::write(dir.join("meta.json"), serde_json::json!({"still_s": self.still_s}).to_string())?;
+        put("truth.csv", s)?;
+        put("camera.json", serde_json::to_string_pretty(&self.cam)?)?;
+        put("meta.json", serde_json::json!({"still_s": self.still_s}).to_string())?;
         Ok(())
     }
 }

@@ -253,7 +253,7 @@ fn simulate_runs(args: SimulateArgs, format: Format) -> Result<ExitCode> {
         }));
     }
     if let Some(out) = &args.out {
-        std::fs::create_dir_all(out)?;
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         subnav_link::output::write_atomic(
             out.join("results.json"),
             serde_json::to_string_pretty(&json!({"summary": summary, "runs": all}))?,
