@@ -522,6 +522,10 @@ fn two_outputs_that_are_one_file_are_refused() {
         &["--record", "--truth", "same file"],
     );
     refused(
+        subnav().args(["run", "--native"]).arg(&sc).arg("--truth").arg(&x).arg("--mavlink-summary").arg(&x),
+        &["--truth", "--mavlink-summary", "same file"],
+    );
+    refused(
         subnav().args(["fgo", "replay", "--input"]).arg(d.join("log.jsonl")).arg("--out").arg(&x).arg("--decisions").arg(&x),
         &["--out", "--decisions", "same file"],
     );

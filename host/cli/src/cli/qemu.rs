@@ -56,8 +56,14 @@ pub struct Args {
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     // Before any output or the flash image is touched: the ELF, the outputs.
     subnav_link::defmt_log::DefmtTable::from_elf_path(&args.elf)?;
-    let outputs: Vec<(&str, &std::path::Path)> =
-        [("--record", args.record.as_deref()), ("--flash", args.flash.as_deref())].into_iter().filter_map(|(f, p)| Some((f, p?))).collect();
+    let outputs: Vec<(&str, &std::path::Path)> = [
+        ("--record", args.record.as_deref()),
+        ("--flash", args.flash.as_deref()),
+        ("--mavlink-summary", args.mavlink.bridge.mavlink_summary.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(f, p)| Some((f, p?)))
+    .collect();
     subnav_link::output::check_outputs(&outputs, &[&args.elf])?;
     let mut cfg = QemuConfig::new(&args.elf);
     cfg.qemu = args.qemu;

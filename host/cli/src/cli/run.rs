@@ -191,6 +191,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         ("--truth", args.truth.as_deref()),
         ("--report", report_rec.as_deref()),
         ("--report", report_truth.as_deref()),
+        ("--mavlink-summary", args.mavlink.bridge.mavlink_summary.as_deref()),
     ]
     .into_iter()
     .filter_map(|(f, p)| Some((f, p?)))
