@@ -639,6 +639,7 @@ fn counts_repeats_and_rates_have_bounds() {
     }
     refused(subnav().args(["phasecorr", "a.png", "b.png", "--time-repeat", "100000000"]), &["--time-repeat", "0..=10000"]);
     refused(subnav().args(["run", "--native", "--speed", "1e-9"]), &["--speed", "0.1"]);
+    refused(subnav().args(["mavlink", "--from", "native", "--to", "udpout:127.0.0.1:9", "--speed", "1e-9"]), &["--speed", "0.1"]);
     refused(subnav().args(["qemu", "--elf", "x.elf", "--timeout-s", "0"]), &["--timeout-s", "1..=604800"]);
     refused(subnav().args(["qemu", "--elf", "x.elf", "--timeout-s", "18446744073709551615"]), &["--timeout-s"]);
     assert!(files_in(dir.path()).is_empty());

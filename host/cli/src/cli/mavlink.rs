@@ -177,8 +177,8 @@ pub struct Args {
     #[command(flatten)]
     pub bridge: BridgeOpts,
     /// Simulated and replayed sources: seconds of dive per second (1 = real time, what an
-    /// autopilot expects).
-    #[arg(long, default_value_t = 1.0, value_parser = super::args::f64_positive_upto(1e3))]
+    /// autopilot expects; 0.1..=1000).
+    #[arg(long, default_value_t = 1.0, value_parser = super::args::f64_in(super::args::MIN_SPEED..=1e3))]
     pub speed: f64,
     /// native: the scenario's seed.
     #[arg(long)]
