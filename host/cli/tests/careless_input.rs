@@ -692,6 +692,19 @@ fn nonsense_numbers_and_empty_results_are_errors() {
     assert!(!o.status.success() && !String::from_utf8_lossy(&o.stdout).contains("0 poses"), "{e}");
 
     refused(subnav().args(["run", "--elf", "fw.elf", "--seeds", "1..3"]), &["--elf", "--seeds"]);
+
+    // A dive too short for an aided solution printed "RMS NaN m, final NaN m (NaN % of -0 m
+    // travelled)" and exited 0.
+    let sc = d.join("short.json");
+    assert!(subnav().args(["sim", "--duration-s", "5", "--out"]).arg(&sc).status().unwrap().success());
+    for extra in [&[][..], &["--seeds", "1..3"]] {
+        let mut c = subnav();
+        c.args(["run", "--native", "--quiet", "--duration-s", "1"]).arg(&sc).args(extra);
+        let (o, e) = run(&mut c);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(!o.status.success() && e.contains("no aided navigation solution") && e.contains("no error statistics"), "{e}");
+        assert!(!out.contains("NaN % of"), "{out}");
+    }
 }
 
 /// Issue 40 (5): "version 0 is newer than this host reads (1)": a recording of format version 0

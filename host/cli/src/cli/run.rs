@@ -128,11 +128,14 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
         );
     }
     let mut ok = true;
+    // Runs with no aided solution have no error statistics (NaN): an error, not a mean of NaN.
+    let mut unaided = 0usize;
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
         let run = run_native_scored(&sc, None);
         let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc);
         ok &= r.nonfinite_values == 0;
+        unaided += usize::from(r.aided_messages == 0);
         if format == Format::Text {
             println!(
                 "{seed:>4}  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}  {}",
@@ -175,7 +178,13 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     if !ok {
         eprintln!("error: a run produced non-finite estimates");
     }
-    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    if unaided > 0 {
+        eprintln!(
+            "error: {unaided} of {} runs had no aided navigation solution ({} s dives): no error statistics; run longer dives",
+            seeds.count, sc.duration_s
+        );
+    }
+    Ok(if ok && unaided == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
@@ -328,7 +337,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             result.exit_code, result.nonfinite_values
         );
     }
-    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    // Statistics from nothing ("RMS NaN m ... NaN % of -0 m") are not a result.
+    let aided = result.aided_messages > 0;
+    if !aided {
+        eprintln!(
+            "error: no aided navigation solution in the {} s dive ({} navigation messages, none aided): no error statistics; run a longer dive",
+            sc.duration_s, result.nav_messages
+        );
+    }
+    Ok(if ok && aided { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 /// The report of a run: its recording with the truth, and the map's nodes and the closures the
@@ -362,23 +379,30 @@ fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: 
 
 fn print_summary(r: &DiveResult) {
     println!("navigation messages   {} ({} aided, first at {:?} s)", r.nav_messages, r.aided_messages, r.first_aided_s);
-    println!(
-        "heading               RMSE {:.3} deg, max {:.3} deg, {:.1} % within 3 sigma (converged from {:?} s; all aided: RMSE {:.2} deg)",
-        r.heading_rmse_deg,
-        r.heading_max_abs_err_deg,
-        100.0 * r.heading_within_3_sigma,
-        r.heading_converged_s,
-        r.heading_rmse_all_aided_deg
-    );
-    println!(
-        "horizontal position   RMS {:.2} m, final {:.2} m ({:.3} % of {:.0} m travelled), max {:.2} m, {:.1} % within 3 sigma",
-        r.horizontal_rms_err_m,
-        r.horizontal_final_err_m,
-        r.final_err_pct_of_distance,
-        r.distance_m,
-        r.horizontal_max_err_m,
-        100.0 * r.within_3_sigma
-    );
+    if r.aided_messages == 0 {
+        println!("heading, position     no aided solution: no error statistics");
+    } else {
+        println!(
+            "heading               RMSE {:.3} deg, max {:.3} deg, {:.1} % within 3 sigma (converged from {:?} s; all aided: RMSE {:.2} deg)",
+            r.heading_rmse_deg,
+            r.heading_max_abs_err_deg,
+            100.0 * r.heading_within_3_sigma,
+            r.heading_converged_s,
+            r.heading_rmse_all_aided_deg
+        );
+        println!(
+            "horizontal position   RMS {:.2} m, final {:.2} m ({}), max {:.2} m, {:.1} % within 3 sigma",
+            r.horizontal_rms_err_m,
+            r.horizontal_final_err_m,
+            if r.distance_m > 0.0 {
+                format!("{:.3} % of {:.0} m travelled", r.final_err_pct_of_distance, r.distance_m)
+            } else {
+                "no distance travelled".to_string()
+            },
+            r.horizontal_max_err_m,
+            100.0 * r.within_3_sigma
+        );
+    }
     println!("depth                 RMSE {:.3} m (raw sensor {:.4} m)", r.depth_rmse_m, r.raw_depth_rmse_m);
     println!("compass alone         {} fixes, {} without, RMSE {:.2} deg", r.compass_fixes, r.compass_no_fix, r.compass_rmse_deg);
     println!("bus transactions      {}  corrupt frames {}  non-finite values {}", r.bus_transactions, r.corrupt_frames, r.nonfinite_values);
