@@ -355,6 +355,20 @@ mod tests {
     }
 
     #[test]
+    fn a_fifo_output_is_written_in_place_for_its_reader() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("pipe");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        let f2 = fifo.clone();
+        let reader = std::thread::spawn(move || std::fs::read(&f2).unwrap());
+        write_atomic(&fifo, b"through the pipe").unwrap();
+        assert_eq!(reader.join().unwrap(), b"through the pipe");
+        use std::os::unix::fs::FileTypeExt;
+        assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
     fn a_full_device_is_an_error_naming_the_path() {
         let dir = tempfile::tempdir().unwrap();
         let full = device(dir.path(), 7);
