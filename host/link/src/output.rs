@@ -46,7 +46,8 @@ pub struct AtomicFile {
 static COUNTER: AtomicU64 = AtomicU64::new(0);
 
 impl AtomicFile {
-    /// Create the temporary file beside `target` (the target itself is not touched yet).
+    /// Create the temporary file beside `target` (the target itself is not touched yet), or,
+    /// when `target` is a device or a FIFO, open it for writing in place.
     pub fn create(target: &Path) -> Result<Self> {
         if target.is_dir() {
             bail!("{} is a directory, not a file to write", target.display());
