@@ -115,10 +115,9 @@ fn write_outputs(
             left.push(("truth", white, t));
             right.push(("truth", white, t));
         }
-        plot::maps(
-            &dir.join("map_before_after.png"),
-            &[("before: dead reckoning", &g0, left), ("after: graph SLAM + spring", &g1, right)],
-        )?;
+        let p = dir.join("map_before_after.png");
+        plot::maps(&p, &[("before: dead reckoning", &g0, left), ("after: graph SLAM + spring", &g1, right)])
+            .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }
@@ -240,10 +239,9 @@ fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
             }
             if !args.no_plots {
                 let e: Vec<Vec<f64>> = sets.iter().take(3).map(|o| pipeline::sounding_errors(&sim, *o)).collect();
-                plot::error_histograms(
-                    &dir.join("error_histograms.png"),
-                    &[("dead reckoning", &e[0]), ("uniform", &e[1]), ("spring", &e[2])],
-                )?;
+                let p = dir.join("error_histograms.png");
+                plot::error_histograms(&p, &[("dead reckoning", &e[0]), ("uniform", &e[1]), ("spring", &e[2])])
+                    .with_context(|| format!("writing {}", p.display()))?;
                 let t: Vec<f64> = sim.survey.nav.iter().map(|n| n.t_s).collect();
                 let err_of = |o: Option<&[V2]>| -> Vec<f64> {
                     sim.survey
@@ -267,7 +265,8 @@ fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
                         ("spring", RGBColor(0, 150, 0), err_of(Some(&out.offsets_spring))),
                     ],
                     &keys_t,
-                )?;
+                )
+                .with_context(|| format!("writing {}", dir.join("nav_error.png").display()))?;
             }
         }
         evals.push((seed, ev));

@@ -88,7 +88,8 @@ fn write_outputs(dir: &Path, res: &SurveyResult) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     subnav_link::output::write_atomic(dir.join("map.json"), export::to_json(&res.map, Some(&res.report))?)?;
     subnav_link::output::write_atomic(dir.join("map.graphml"), export::to_graphml(&res.map))?;
-    export::plot(&dir.join("map.png"), &res.map, &res.track)?;
+    let png = dir.join("map.png");
+    export::plot(&png, &res.map, &res.track).with_context(|| format!("writing {}", png.display()))?;
     subnav_link::output::write_atomic(dir.join("fixes.bin"), res.fix_frames.concat())?;
     Ok(())
 }
