@@ -264,15 +264,23 @@ fn simulate_runs(args: SimulateArgs, format: Format) -> Result<ExitCode> {
         Format::Text => {
             let source = if args.images { "rendered stereo images, FAST + KLT front end" } else { "synthetic feature tracks" };
             let outage = outage.map_or(String::new(), |(a, d)| format!(", vision outage {d:.0} s from {a:.0} s"));
-            println!("{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs)", args.seeds.count, args.distance_m);
+            println!(
+                "{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs; n/a: no data, e.g. RPE over more than the track)",
+                args.seeds.count, args.distance_m
+            );
             println!(
                 "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                 "variant", "drift %", "ATE m", "ATE deg", "RPE50 m", "RPE100 m", "NEES ori", "NEES pos"
             );
             for s in &summary {
+                // A figure with nothing behind it (RPE over a length longer than the track) is
+                // said to be so, not printed as NaN.
                 let c = |k: &str| {
                     let a = &s[k];
-                    format!("{:.3} [{:.3}]", a[0].as_f64().unwrap_or(f64::NAN), a[1].as_f64().unwrap_or(f64::NAN))
+                    match (a[0].as_f64().filter(|v| v.is_finite()), a[1].as_f64().filter(|v| v.is_finite())) {
+                        (Some(mean), Some(max)) => format!("{mean:.3} [{max:.3}]"),
+                        _ => "n/a".to_string(),
+                    }
                 };
                 println!(
                     "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
