@@ -104,3 +104,42 @@ fn qemu_recording_exports_to_mcap_that_an_independent_reader_reads_back() {
     assert_eq!(topics["/subnav/pose"]["keys"], serde_json::json!(["frame_id", "pose", "timestamp"]));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A character device `c 1 minor` (3 = null, 7 = full) made with `mknod` in `dir`, or, where
+/// this process may not make device nodes, the system's own (only written to, and checked to
+/// be a device afterwards).
+fn device(dir: &std::path::Path, minor: u32) -> std::path::PathBuf {
+    let p = dir.join(format!("dev{minor}"));
+    let made = std::process::Command::new("mknod").arg(&p).args(["c", "1", &minor.to_string()]).status().is_ok_and(|s| s.success());
+    if made { p } else { std::path::PathBuf::from(if minor == 3 { "/dev/null" } else { "/dev/full" }) }
+}
+
+fn is_char_device(p: &std::path::Path) -> bool {
+    use std::os::unix::fs::FileTypeExt;
+    std::fs::symlink_metadata(p).is_ok_and(|m| m.file_type().is_char_device())
+}
+
+/// Issue 40: `qemu --record NODE` renamed a temporary file over a device node (it became a
+/// regular file) and a `/dev/full` node reported success. Now the recording is written into the
+/// device in place, which stays a device; a full one is an error naming it, before QEMU starts.
+#[test]
+fn a_qemu_recording_onto_a_device_keeps_the_device_and_a_full_one_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let (null, full) = (device(dir.path(), 3), device(dir.path(), 7));
+    let mut cfg = QemuConfig::new(subnav_tests::qemu_elf());
+    cfg.run_ms = Some(300);
+    cfg.timeout = Duration::from_secs(60);
+    let e = format!("{:#}", QemuRecorder::start(&mut cfg, &full).err().expect("a full device is an error"));
+    assert!(e.contains(&full.display().to_string()) && e.contains("No space left"), "{e}");
+    let recorder = QemuRecorder::start(&mut cfg, &null).unwrap();
+    let outcome = run(&cfg, |_, _| {}).unwrap();
+    cfg.raw_tap = None;
+    assert_eq!(recorder.finish().unwrap(), [null.clone()]);
+    assert!(outcome.success(), "{outcome:?}");
+    for p in [&null, &full] {
+        assert!(is_char_device(p), "{} is no longer a device", p.display());
+    }
+    if null.starts_with(dir.path()) {
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2, "a temporary file was left behind");
+    }
+}

@@ -205,8 +205,13 @@ impl Grid {
         g
     }
 
-    /// ESRI ASCII grid (x = east, y = north; values = depth in metres, positive down).
+    /// ESRI ASCII grid (x = east, y = north; values = depth in metres, positive down). Errors
+    /// name the file.
     pub fn write_esri_ascii(&self, path: &std::path::Path) -> Result<()> {
+        self.write_esri_ascii_unnamed(path).with_context(|| format!("writing {}", path.display()))
+    }
+
+    fn write_esri_ascii_unnamed(&self, path: &std::path::Path) -> Result<()> {
         let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
         let mut w = std::io::BufWriter::new(f);
         writeln!(w, "ncols {}", self.cols)?;

@@ -157,6 +157,10 @@ pub fn read_survey(soundings: &Path, nav: &Path) -> Result<Survey> {
 }
 
 pub fn write_nav(path: &Path, nav: &[NavSample]) -> Result<()> {
+    write_nav_unnamed(path, nav).with_context(|| format!("writing {}", path.display()))
+}
+
+fn write_nav_unnamed(path: &Path, nav: &[NavSample]) -> Result<()> {
     let mut w = std::io::BufWriter::new(std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?);
     writeln!(w, "t_s,north_m,east_m,depth_m,heading_rad,vel_sigma_mps")?;
     for n in nav {
@@ -167,6 +171,10 @@ pub fn write_nav(path: &Path, nav: &[NavSample]) -> Result<()> {
 }
 
 pub fn write_soundings(path: &Path, pings: &[Ping]) -> Result<()> {
+    write_soundings_unnamed(path, pings).with_context(|| format!("writing {}", path.display()))
+}
+
+fn write_soundings_unnamed(path: &Path, pings: &[Ping]) -> Result<()> {
     let mut w = std::io::BufWriter::new(std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?);
     writeln!(w, "t_s,beam_angle_rad,range_m")?;
     for p in pings {

@@ -442,3 +442,289 @@ fn ice_data_sets_are_checked() {
     std::fs::write(ds.join("tracks.csv"), "t_s,frame_id,feature_id,ul,vl,ur,vr\n").unwrap();
     refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["tracks.csv"]);
 }
+
+// Issue 40, "careless input, round two": each test below is a finding of the issue's probe run
+// that failed before and passes now.
+
+/// A character device `c 1 minor` (3 = null, 7 = full) made with `mknod` in `dir`, or, where
+/// this process may not make device nodes, the system's own (`/dev/null`, `/dev/full`: only
+/// written to, and checked to be a device afterwards).
+fn device(dir: &Path, minor: u32) -> std::path::PathBuf {
+    let p = dir.join(format!("dev{minor}"));
+    let made = Command::new("mknod").arg(&p).args(["c", "1", &minor.to_string()]).status().is_ok_and(|s| s.success());
+    if made { p } else { std::path::PathBuf::from(if minor == 3 { "/dev/null" } else { "/dev/full" }) }
+}
+
+fn is_char_device(p: &Path) -> bool {
+    use std::os::unix::fs::FileTypeExt;
+    std::fs::symlink_metadata(p).is_ok_and(|m| m.file_type().is_char_device())
+}
+
+/// A small recording with one uplink chunk.
+fn tiny_recording(path: &Path) -> Vec<u8> {
+    let mut w = subnav_link::record::Writer::new(Vec::new(), &subnav_link::record::Meta::new("test")).unwrap();
+    w.chunk(subnav_link::record::Stream::Uplink, 1, b"\x00").unwrap();
+    let bytes = w.into_inner();
+    std::fs::write(path, &bytes).unwrap();
+    bytes
+}
+
+/// Issue 40 (1): `run --record`, `export --mcap` and `filter replay --out` renamed a temporary
+/// file over a device node (a `mknod NAME c 1 3` node became a 315,185-byte regular file), and
+/// a `/dev/full` node reported success. Now a device is written in place and stays a device; a
+/// full one is an error naming it.
+#[test]
+fn a_device_given_as_output_is_still_a_device_afterwards() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (null, full) = (device(d, 3), device(d, 7));
+    let full_s = full.display().to_string();
+    let rec = d.join("r.snrec");
+    tiny_recording(&rec);
+    let (o, e) = run(subnav().arg("export").arg(&rec).arg("--mcap").arg(&null));
+    assert!(o.status.success(), "{e}");
+    refused(subnav().arg("export").arg(&rec).arg("--mcap").arg(&full), &[&full_s, "No space left"]);
+    let log = d.join("log.csv");
+    assert!(subnav().args(["filter", "simulate", "--duration-s", "20", "--out"]).arg(&log).status().unwrap().success());
+    let (o, e) = run(subnav().args(["filter", "replay"]).arg(&log).arg("--out").arg(&null));
+    assert!(o.status.success(), "{e}");
+    refused(subnav().args(["filter", "replay"]).arg(&log).arg("--out").arg(&full), &[&full_s, "No space left"]);
+    let sc = d.join("dive.json");
+    assert!(subnav().args(["sim", "--duration-s", "20", "--out"]).arg(&sc).status().unwrap().success());
+    let (o, e) = run(subnav().args(["run", "--native", "--quiet"]).arg(&sc).arg("--record").arg(&null).arg("--truth").arg(&null));
+    assert!(o.status.success(), "{e}");
+    refused(subnav().args(["run", "--native", "--quiet"]).arg(&sc).arg("--record").arg(&full), &[&full_s, "No space left"]);
+    refused(subnav().args(["run", "--native", "--quiet"]).arg(&sc).arg("--truth").arg(&full), &[&full_s, "No space left"]);
+    for p in [&null, &full] {
+        assert!(is_char_device(p), "{} is no longer a device", p.display());
+    }
+    let mut names = files_in(d);
+    names.retain(|n| !n.starts_with("dev"));
+    assert_eq!(names, ["dive.json", "log.csv", "r.snrec"], "a temporary file was left behind");
+}
+
+/// Issue 40 (1): two outputs of one command that are one file (`run --record X --truth X`,
+/// `fgo replay --out X --decisions X`, `fgo simulate --out X --truth X`, `compass envelope
+/// --png X --table X`, also through `..`) exited 0 with one output lost. Now refused before any
+/// work, and an old file there is left byte for byte.
+#[test]
+fn two_outputs_that_are_one_file_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("sub")).unwrap();
+    let x = d.join("x.out");
+    std::fs::write(&x, b"old").unwrap();
+    let via_dotdot = d.join("sub").join("..").join("x.out");
+    let sc = d.join("dive.json");
+    assert!(subnav().args(["sim", "--duration-s", "5", "--out"]).arg(&sc).status().unwrap().success());
+    refused(
+        subnav().args(["run", "--native"]).arg(&sc).arg("--record").arg(&x).arg("--truth").arg(&via_dotdot),
+        &["--record", "--truth", "same file"],
+    );
+    refused(
+        subnav().args(["run", "--native"]).arg(&sc).arg("--truth").arg(&x).arg("--mavlink-summary").arg(&x),
+        &["--truth", "--mavlink-summary", "same file"],
+    );
+    refused(
+        subnav().args(["fgo", "replay", "--input"]).arg(d.join("log.jsonl")).arg("--out").arg(&x).arg("--decisions").arg(&x),
+        &["--out", "--decisions", "same file"],
+    );
+    refused(subnav().args(["fgo", "simulate", "--out"]).arg(&x).arg("--truth").arg(&via_dotdot), &["--out", "--truth", "same file"]);
+    refused(subnav().args(["filter", "simulate", "--out"]).arg(&x).arg("--truth").arg(&x), &["same file"]);
+    let png = d.join("e.png");
+    refused(subnav().args(["compass", "envelope", "--png"]).arg(&png).arg("--table").arg(&png), &["--png", "--table", "same file"]);
+    // Outputs that do not exist yet collide too.
+    let new = d.join("new.csv");
+    refused(subnav().args(["fgo", "simulate", "--out"]).arg(&new).arg("--truth").arg(d.join("./new.csv")), &["same file"]);
+    assert!(!new.exists() && !png.exists());
+    assert_eq!(std::fs::read(&x).unwrap(), b"old");
+    // An output that is the reference it is compared with.
+    let field = d.join("field.csv");
+    std::fs::write(&field, "a reference\n").unwrap();
+    refused(
+        subnav()
+            .args(["compass", "field", "--sun-zenith-deg", "30", "--depth-m", "10", "--output"])
+            .arg(&field)
+            .arg("--compare")
+            .arg(&field),
+        &["--output", "also an input"],
+    );
+    assert_eq!(std::fs::read_to_string(&field).unwrap(), "a reference\n");
+    // The figure's format comes from its name ("ImageError(Unsupported(...))").
+    refused(subnav().args(["compass", "envelope", "--png"]).arg(d.join("fig")), &["--png", "fig", "ending in .png"]);
+}
+
+/// Issue 40 (1): `report recording --out DIR` with the recording in DIR cut it from 474,045 to
+/// 1,058 bytes; `bathy run --nav D/trajectory_corrected.csv --out D` rewrote its own input.
+/// An output directory that holds an input is refused before anything is read.
+#[test]
+fn an_output_directory_holding_an_input_is_refused_before_reading() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let rec = d.join("dive.snrec");
+    let bytes = tiny_recording(&rec);
+    refused(subnav().args(["report", "recording"]).arg(&rec).arg("--out").arg(d), &["--out", "holds the input", "dive.snrec"]);
+    refused(subnav().args(["report", "recording"]).arg(&rec).arg("--out").arg(d.join("x").join("..")), &["holds the input"]);
+    assert_eq!(std::fs::read(&rec).unwrap(), bytes);
+    let nav = d.join("trajectory_corrected.csv");
+    let snd = d.join("soundings.csv");
+    std::fs::write(&nav, "t_s,north_m,east_m,depth_m,heading_rad\n0,0,0,10,0\n").unwrap();
+    std::fs::write(&snd, "t_s,beam_angle_rad,range_m\n0,0,18\n").unwrap();
+    refused(
+        subnav().args(["bathy", "run", "--no-plots", "--soundings"]).arg(&snd).arg("--nav").arg(&nav).arg("--out").arg(d),
+        &["--out", "holds the input"],
+    );
+    assert_eq!(std::fs::read_to_string(&nav).unwrap(), "t_s,north_m,east_m,depth_m,heading_rad\n0,0,0,10,0\n");
+    refused(subnav().args(["ice", "run", "--input"]).arg(d).arg("--out").arg(d), &["--out", "also an input"]);
+    refused(subnav().args(["run", "--native"]).arg(d.join("sc.json")).arg("--report").arg(d), &["--report"]);
+    assert_eq!(files_in(d), ["dive.snrec", "soundings.csv", "trajectory_corrected.csv"]);
+    // A real dive's recording, reported on into its own directory.
+    let sim = d.join("sim");
+    let (o, e) = run(subnav().args(["report", "simulate", "--duration-s", "30", "--out"]).arg(&sim));
+    assert!(o.status.success(), "{e}");
+    let real = std::fs::read(sim.join("dive.snrec")).unwrap();
+    let before = files_in(&sim);
+    refused(subnav().args(["report", "recording"]).arg(sim.join("dive.snrec")).arg("--out").arg(&sim), &["holds the input"]);
+    assert_eq!(std::fs::read(sim.join("dive.snrec")).unwrap(), real);
+    assert_eq!(files_in(&sim), before);
+}
+
+/// Issue 40 (2): `calibrate head --flash FILE` and `qemu --flash FILE` took any existing file up
+/// to 2 MiB as a flash image (a 9-byte text file became 2 MiB; `qemu` grew it even when its ELF
+/// check then failed) and `--flash /dev/zero` read until 4.1 GB of memory. Now a file that is
+/// not an image is refused untouched, a device before it is read.
+#[test]
+fn a_file_that_is_not_a_flash_image_is_refused_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let note = d.join("note.txt");
+    std::fs::write(&note, b"my notes\n").unwrap();
+    refused(subnav().args(["calibrate", "head", "--flash"]).arg(&note), &["note.txt", "9 bytes", "2097152", "--new-flash"]);
+    let rec = d.join("dive.snrec");
+    let bytes = tiny_recording(&rec);
+    refused(subnav().args(["calibrate", "head", "--flash"]).arg(&rec), &["dive.snrec", "not a flash image"]);
+    let t0 = Instant::now();
+    refused(subnav().args(["calibrate", "head", "--flash", "/dev/zero"]), &["/dev/zero", "not a regular file"]);
+    assert!(t0.elapsed() < Duration::from_secs(10));
+    refused(subnav().args(["calibrate", "head", "--new-flash", "--flash", "/dev/zero"]), &["/dev/zero", "not a regular file"]);
+    // `qemu` checks its ELF before it touches the image: neither grown nor created.
+    let elf = d.join("fw.elf");
+    std::fs::write(&elf, b"not an elf").unwrap();
+    refused(subnav().args(["qemu", "--elf"]).arg(&elf).arg("--flash").arg(&note), &["fw.elf", "not an ELF"]);
+    refused(subnav().args(["qemu", "--elf"]).arg(&elf).arg("--flash").arg(d.join("new.flash")), &["fw.elf", "not an ELF"]);
+    refused(subnav().args(["qemu", "--elf"]).arg(&elf).arg("--flash").arg(&elf), &["fw.elf"]);
+    assert_eq!(std::fs::read(&note).unwrap(), b"my notes\n");
+    assert_eq!(std::fs::read(&rec).unwrap(), bytes);
+    assert_eq!(std::fs::read(&elf).unwrap(), b"not an elf");
+    assert_eq!(files_in(d), ["dive.snrec", "fw.elf", "note.txt"]);
+}
+
+/// Issue 40 (3): `fgo monte-carlo --seeds 0..18446744073709551615` panicked (capacity overflow,
+/// exit 101); the same range on `run`, `filter monte-carlo`, `bathy simulate`, `ice simulate`,
+/// `calibrate compare`, `phasecorr --time-repeat 100000000` and `run --speed 1e-9` ran until
+/// killed. Now usage errors with the bound.
+#[test]
+fn counts_repeats_and_rates_have_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let all = "0..18446744073709551615";
+    for cmd in [
+        &["fgo", "monte-carlo", "--seeds", all][..],
+        &["run", "--native", "--seeds", all],
+        &["filter", "monte-carlo", "--seeds", all],
+        &["bathy", "simulate", "--out", "b", "--seeds", all],
+        &["ice", "simulate", "--seeds", all],
+        &["calibrate", "compare", "--seeds", all],
+    ] {
+        refused(subnav().current_dir(dir.path()).args(cmd), &["--seeds", "10000"]);
+    }
+    refused(subnav().args(["phasecorr", "a.png", "b.png", "--time-repeat", "100000000"]), &["--time-repeat", "0..=10000"]);
+    refused(subnav().args(["run", "--native", "--speed", "1e-9"]), &["--speed", "0.1"]);
+    refused(subnav().args(["mavlink", "--from", "native", "--to", "udpout:127.0.0.1:9", "--speed", "1e-9"]), &["--speed", "0.1"]);
+    refused(subnav().args(["qemu", "--elf", "x.elf", "--timeout-s", "0"]), &["--timeout-s", "1..=604800"]);
+    refused(subnav().args(["qemu", "--elf", "x.elf", "--timeout-s", "18446744073709551615"]), &["--timeout-s"]);
+    assert!(files_in(dir.path()).is_empty());
+}
+
+/// Issue 40 (4): NaN and negative sigmas and slopes were taken ("reported 1-sigma NaN deg"); one
+/// `1e300` time in a `filter replay` log froze the position (exit 0); `ice run` with negative
+/// frame numbers or 1e30 ids reported "0 poses ... ATE 0.000 m" as a success; `run --elf
+/// --seeds` ignored `--elf`.
+#[test]
+fn nonsense_numbers_and_empty_results_are_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (flag, v) in [("--tilt-sigma-deg", "nan"), ("--tilt-sigma-deg", "-1"), ("--slope-rms", "-0.1"), ("--slope-rms", "inf")] {
+        refused(subnav().args(["compass", "simulate", flag, v]), &[flag]);
+    }
+    refused(subnav().args(["compass", "geolocate", "--heading-sigma-deg", "-1"]), &["--heading-sigma-deg", "0..=180"]);
+    // A track too short for any fix: no statistics, not "median NaN".
+    refused(
+        subnav().args(["compass", "geolocate", "--trials", "1", "--track-s", "1", "--interval-s", "1"]),
+        &["no trial", "no statistics"],
+    );
+    let log = d.join("log.csv");
+    assert!(subnav().args(["filter", "simulate", "--duration-s", "20", "--out"]).arg(&log).status().unwrap().success());
+    let text = std::fs::read_to_string(&log).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    let at = lines.len() / 2;
+    let damaged = lines[at].replacen(lines[at].split(',').next().unwrap(), "1e300", 1);
+    lines[at] = &damaged;
+    std::fs::write(&log, lines.join("\n")).unwrap();
+    refused(
+        subnav().args(["filter", "replay"]).arg(&log).arg("--out").arg(d.join("o.csv")),
+        &["log.csv", &format!("line {}", at + 1), "0..=1e10"],
+    );
+    assert!(!d.join("o.csv").exists());
+
+    let ds = d.join("ds");
+    let (o, e) = run(subnav().args(["ice", "simulate", "--distance-m", "20", "--quiet", "--write"]).arg(&ds));
+    let table = String::from_utf8_lossy(&o.stdout);
+    // RPE over 50 m of a 20-m track has nothing behind it: "n/a", not "NaN [NaN]".
+    assert!(o.status.success() && table.contains("n/a") && !table.contains("NaN"), "{e}{table}");
+    let tracks = std::fs::read_to_string(ds.join("tracks.csv")).unwrap();
+    for bad in ["-1", "1e30"] {
+        let mut rows: Vec<String> = tracks.lines().map(String::from).collect();
+        let f: Vec<&str> = rows[1].split(',').collect();
+        rows[1] = [f[0], bad, &f[2..].join(",")].join(",");
+        std::fs::write(ds.join("tracks.csv"), rows.join("\n") + "\n").unwrap();
+        refused(subnav().args(["ice", "run", "--input"]).arg(&ds), &["tracks.csv", "frame_id", "data row 1"]);
+    }
+    // Tracks with no usable frame: an error, not "0 poses" as a success.
+    std::fs::write(ds.join("tracks.csv"), "t_s,frame_id,feature_id,ul,vl,ur,vr\n0,0,0,0,0,0,0\n").unwrap();
+    let (o, e) = run(subnav().args(["ice", "run", "--input"]).arg(&ds));
+    assert!(!o.status.success() && !String::from_utf8_lossy(&o.stdout).contains("0 poses"), "{e}");
+
+    refused(subnav().args(["run", "--elf", "fw.elf", "--seeds", "1..3"]), &["--elf", "--seeds"]);
+
+    // A dive too short for an aided solution printed "RMS NaN m, final NaN m (NaN % of -0 m
+    // travelled)" and exited 0.
+    let sc = d.join("short.json");
+    assert!(subnav().args(["sim", "--duration-s", "5", "--out"]).arg(&sc).status().unwrap().success());
+    for extra in [&[][..], &["--seeds", "1..3"]] {
+        let mut c = subnav();
+        c.args(["run", "--native", "--quiet", "--duration-s", "1"]).arg(&sc).args(extra);
+        let (o, e) = run(&mut c);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(!o.status.success() && e.contains("no aided navigation solution") && e.contains("no error statistics"), "{e}");
+        assert!(!out.contains("NaN % of"), "{out}");
+    }
+}
+
+/// Issue 40 (5): "version 0 is newer than this host reads (1)": a recording of format version 0
+/// says what was found and what is expected.
+#[test]
+fn a_version_error_says_what_was_found_and_expected() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("v0.snrec");
+    let mut bytes = tiny_recording(&rec);
+    let m = subnav_link::record::MAGIC.len();
+    bytes[m..m + 2].copy_from_slice(&0u16.to_le_bytes());
+    let meta_len = u32::from_le_bytes(bytes[m + 2..m + 6].try_into().unwrap()) as usize;
+    let end = m + 6 + meta_len;
+    let crc = subnav_wire::frame::FRAME_CRC.checksum(&bytes[m..end]);
+    bytes[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+    std::fs::write(&rec, &bytes).unwrap();
+    let (o, e) = run(subnav().args(["decode", "--file"]).arg(&rec));
+    let all = format!("{e}{}", String::from_utf8_lossy(&o.stdout));
+    assert!(all.contains("found version 0") && all.contains("expected 1..=1") && !all.contains("newer"), "{all}");
+}

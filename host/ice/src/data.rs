@@ -87,6 +87,9 @@ fn parse_rows(path: &Path, min_cols: usize) -> Result<Vec<Vec<f64>>> {
     Ok(rows)
 }
 
+/// Frame and feature ids in `tracks.csv` are below this (2^64: they are `u64`).
+const MAX_ID_EXCLUSIVE: f64 = 18_446_744_073_709_551_616.0;
+
 impl Dataset {
     pub fn read_dir(dir: &Path) -> Result<Self> {
         let imu: Vec<ImuSample> = parse_rows(&dir.join("imu.csv"), 7)?
@@ -99,12 +102,26 @@ impl Dataset {
         let mut frames: Vec<Frame> = Vec::new();
         let stereo = if !dir.join("tracks.csv").exists() && dir.join("stereo.csv").exists() { read_stereo_list(dir)? } else { Vec::new() };
         let tracks = if stereo.is_empty() { parse_rows(&dir.join("tracks.csv"), 7)? } else { Vec::new() };
-        for r in tracks {
-            let fid = r[1] as u64;
+        // Ids are whole numbers that fit a u64 (a negative frame number or a 1e30 id became 0
+        // or saturated, and the run reported 0 poses as a success).
+        let id = |v: f64, what: &str, row: usize| -> Result<u64> {
+            if v >= 0.0 && v.fract() == 0.0 && v < MAX_ID_EXCLUSIVE {
+                Ok(v as u64)
+            } else {
+                bail!(
+                    "{}: data row {}: {what} must be a whole number in 0..={}, got {v}",
+                    dir.join("tracks.csv").display(),
+                    row + 1,
+                    u64::MAX
+                )
+            }
+        };
+        for (i, r) in tracks.iter().enumerate() {
+            let (fid, feature) = (id(r[1], "frame_id", i)?, id(r[2], "feature_id", i)?);
             let z = Vector4::new(r[3], r[4], r[5], r[6]);
             match frames.last_mut() {
-                Some(f) if f.frame_id == fid => f.obs.push((r[2] as u64, z)),
-                _ => frames.push(Frame { t_s: r[0], frame_id: fid, obs: vec![(r[2] as u64, z)] }),
+                Some(f) if f.frame_id == fid => f.obs.push((feature, z)),
+                _ => frames.push(Frame { t_s: r[0], frame_id: fid, obs: vec![(feature, z)] }),
             }
         }
         let depth = parse_rows(&dir.join("depth.csv"), 2)?.into_iter().map(|r| DepthReading { t_s: r[0], depth_m: r[1] }).collect();
@@ -206,12 +223,17 @@ impl Dataset {
 
     pub fn write_dir(&self, dir: &Path) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        // Every write error names its file.
+        let put = |name: &str, text: String| -> Result<()> {
+            let p = dir.join(name);
+            std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))
+        };
         let mut s = String::from("t_s,gx,gy,gz,ax,ay,az\n");
         for m in &self.imu {
             let (g, a) = (m.gyro_radps, m.acc_mps2);
             let _ = writeln!(s, "{:.6},{:e},{:e},{:e},{:e},{:e},{:e}", m.t_s, g.x, g.y, g.z, a.x, a.y, a.z);
         }
-        std::fs::write(dir.join("imu.csv"), s)?;
+        put("imu.csv", s)?;
         let mut s = String::from("t_s,frame_id,feature_id,ul,vl,ur,vr\n");
         for f in &self.frames {
             for (id, z) in &f.obs {
@@ -219,18 +241,18 @@ impl Dataset {
             }
         }
         if self.frames.iter().any(|f| !f.obs.is_empty()) || !dir.join("stereo.csv").exists() {
-            std::fs::write(dir.join("tracks.csv"), s)?;
+            put("tracks.csv", s)?;
         }
         let mut s = String::from("t_s,depth_m\n");
         for d in &self.depth {
             let _ = writeln!(s, "{:.6},{:.6}", d.t_s, d.depth_m);
         }
-        std::fs::write(dir.join("depth.csv"), s)?;
+        put("depth.csv", s)?;
         let mut s = String::from("t_s,los_mps,peak\n");
         for v in &self.sonar_velocity {
             let _ = writeln!(s, "{:.6},{:e},{:e}", v.t_s, v.los_mps, v.peak);
         }
-        std::fs::write(dir.join("sonar_velocity.csv"), s)?;
+        put("sonar_velocity.csv", s)?;
         let mut s = String::from("t_s,qw,qx,qy,qz,x,y,z,vx,vy,vz\n");
         for t in &self.truth {
             let q = UnitQuaternion::from_matrix(&t.rot);
@@ -241,9 +263,9 @@ impl Dataset {
                 t.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, v.x, v.y, v.z
             );
         }
-        std::fs::write(dir.join("truth.csv"), s)?;
-        std::fs::write(dir.join("camera.json"), serde_json::to_string_pretty(&self.cam)?)?;
-        std::fs::write(dir.join("meta.json"), serde_json::json!({"still_s": self.still_s}).to_string())?;
+        put("truth.csv", s)?;
+        put("camera.json", serde_json::to_string_pretty(&self.cam)?)?;
+        put("meta.json", serde_json::json!({"still_s": self.still_s}).to_string())?;
         Ok(())
     }
 }

@@ -74,8 +74,9 @@ fn unblock_pipes(req: &std::path::Path, resp: &std::path::Path) {
     let _ = std::fs::OpenOptions::new().read(true).custom_flags(O_NONBLOCK).open(resp);
 }
 
-fn accept_from(listener: &TcpListener, child: &mut Child, what: &str) -> Result<TcpStream> {
-    let started = Instant::now();
+/// Waits for the emulator to connect its `what` until `deadline` (the run's wall-clock limit,
+/// `--timeout-s`: connecting is part of it); `timeout` is that limit, for the message.
+fn accept_from(listener: &TcpListener, child: &mut Child, what: &str, deadline: Instant, timeout: Duration) -> Result<TcpStream> {
     loop {
         match listener.accept() {
             Ok((s, _)) => {
@@ -91,8 +92,8 @@ fn accept_from(listener: &TcpListener, child: &mut Child, what: &str) -> Result<
                     }
                     bail!("QEMU exited before connecting its {what} ({status}): {}", err.trim());
                 }
-                if started.elapsed() > Duration::from_secs(20) {
-                    bail!("QEMU did not connect its {what} within 20 s");
+                if Instant::now() >= deadline {
+                    bail!("QEMU did not connect its {what} within the run's time limit of {} s (--timeout-s)", timeout.as_secs_f64());
                 }
                 std::thread::sleep(Duration::from_millis(5));
             }
@@ -256,6 +257,8 @@ pub fn run_with_bus(
     mut on_event: impl FnMut(QemuEvent, &mut Downlinker),
 ) -> Result<(QemuOutcome, Box<dyn BusHandler>)> {
     let table = DefmtTable::from_elf_path(&cfg.elf)?;
+    // The wall-clock limit covers connecting too.
+    let deadline = Instant::now().checked_add(cfg.timeout).with_context(|| format!("a time limit of {:?} is too long", cfg.timeout))?;
     let listener = TcpListener::bind("127.0.0.1:0").context("binding a local port for the emulated UART")?;
     let port = listener.local_addr()?.port();
     let mut args = vec!["arg=subnav".to_string()];
@@ -303,7 +306,7 @@ pub fn run_with_bus(
     listener.set_nonblocking(true)?;
     let (rq, rs) = (req_pipe.clone(), resp_pipe.clone());
     let bridge = std::thread::spawn(move || serve_bridge(rq, rs, bus));
-    let stream = accept_from(&listener, &mut child.0, "UART")?;
+    let stream = accept_from(&listener, &mut child.0, "UART", deadline, cfg.timeout)?;
     let mut downlink = Downlinker { tap: cfg.raw_tap.clone(), stream: stream.try_clone()?, next_seq: 1 };
 
     let (tx, rx) = mpsc::channel();
@@ -327,7 +330,6 @@ pub fn run_with_bus(
     let mut log_lines = 0u64;
     let (mut tel_open, mut log_open) = (true, true);
     let mut timed_out = false;
-    let deadline = Instant::now() + cfg.timeout;
     let rx: Receiver<Chunk> = rx;
     while tel_open || log_open {
         let left = deadline.saturating_duration_since(Instant::now());
@@ -395,4 +397,24 @@ pub fn run_with_bus(
         stderr,
     };
     Ok((outcome, handler))
+}
+
+#[cfg(test)]
+mod connect_tests {
+    use super::*;
+
+    /// `qemu --timeout-s 1` waited a fixed 20 s for an emulator that never connects.
+    #[test]
+    fn the_time_limit_covers_connecting() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        listener.set_nonblocking(true).unwrap();
+        let child = Command::new("sleep").arg("30").spawn().unwrap();
+        let mut child = KillOnDrop(child);
+        let t0 = Instant::now();
+        let limit = Duration::from_millis(300);
+        let e = accept_from(&listener, &mut child.0, "UART", t0 + limit, limit).unwrap_err().to_string();
+        let took = t0.elapsed();
+        assert!(took >= limit && took < Duration::from_secs(5), "took {took:?}");
+        assert!(e.contains("UART") && e.contains("--timeout-s") && e.contains("0.3 s"), "{e}");
+    }
 }

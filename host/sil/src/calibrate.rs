@@ -727,9 +727,11 @@ pub fn calibrate_with(target: &Target, build_seed: Option<u64>, run_seed: u64, p
     Ok(Calibrated { records, recording })
 }
 
-/// A flash image file as a shared chip (created erased when missing).
-pub fn flash_file(path: &Path) -> Result<SharedFlash> {
-    let chip = crate::chips::w25q::W25qModel::with_file(path)?;
+/// A flash image file as a shared chip (created erased when missing; `new`: a new erased image
+/// replacing the file there). A file that is not an image is refused, untouched.
+pub fn flash_file(path: &Path, new: bool) -> Result<SharedFlash> {
+    use crate::chips::w25q::W25qModel;
+    let chip = if new { W25qModel::new_file(path)? } else { W25qModel::with_file(path)? };
     Ok(SharedFlash(std::sync::Arc::new(std::sync::Mutex::new(chip))))
 }
 

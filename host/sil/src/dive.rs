@@ -109,7 +109,10 @@ pub struct RecordingSpan {
 
 impl RecordingSpan {
     /// Read each recording's uplink for its span and the gaps between them.
+    /// A recording written into a device or a FIFO (`--record /dev/null`) cannot be read back
+    /// and has no span.
     pub fn of(paths: &[std::path::PathBuf]) -> Result<Vec<RecordingSpan>> {
+        let paths: Vec<std::path::PathBuf> = paths.iter().filter(|p| !subnav_link::output::is_special(p)).cloned().collect();
         let stats = paths.iter().map(|p| subnav_link::record::uplink_stats(p)).collect::<Result<Vec<_>>>()?;
         Ok(paths
             .iter()

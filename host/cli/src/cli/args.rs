@@ -10,7 +10,13 @@
 //! (`--upsample 18446744073709551615`) or asking for gigabytes (`--duration-s 1e9`).
 //!
 //! Seeds: `--seed N` selects one seeded run; `--seeds SEEDS` selects several, written `N` (one
-//! seed), `A..B` (A to B exclusive, as a Rust range) or `A..=B` (A to B inclusive).
+//! seed), `A..B` (A to B exclusive, as a Rust range) or `A..=B` (A to B inclusive), at most
+//! [`MAX_SEEDS`] of them (`0..18446744073709551615` panicked one command and ran the others
+//! until killed).
+//!
+//! Bounds on work (each keeps a command finite): [`MAX_SEEDS`] seeded runs, [`MAX_REPEATS`]
+//! timing repeats, [`MAX_TIMEOUT_S`] of wall-clock limit, [`MIN_SPEED`] times real time at the
+//! slowest, [`MAX_SIM_DURATION_S`] of simulated time.
 
 use std::fmt;
 use std::fmt::Display;
@@ -53,6 +59,18 @@ where
 
 /// Longest simulated dive or mission a flag may ask for, s (one day; `subnav sim`'s bound).
 pub const MAX_SIM_DURATION_S: f64 = 86_400.0;
+
+/// Most seeds one `--seeds` range may hold (each is a whole run).
+pub const MAX_SEEDS: u64 = 10_000;
+
+/// Most repeats of a timing loop (`phasecorr --time-repeat`).
+pub const MAX_REPEATS: u32 = 10_000;
+
+/// Longest wall-clock limit (`--timeout-s`), s: a week.
+pub const MAX_TIMEOUT_S: u64 = 604_800;
+
+/// Slowest pacing of a run (`run --speed`), times real time: a day's dive then takes 10 days.
+pub const MIN_SPEED: f64 = 0.1;
 
 /// A non-empty contiguous set of seeds, `first .. first + count`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -99,6 +117,12 @@ pub fn parse_seeds(s: &str) -> Result<Seeds, String> {
     };
     if end_exclusive <= first {
         return Err(format!("{s:?} is an empty range; {FORMS}"));
+    }
+    if end_exclusive - first > MAX_SEEDS {
+        return Err(format!(
+            "{s:?} holds {} seeds, more than the {MAX_SEEDS} one command runs (each seed is a whole run)",
+            end_exclusive - first
+        ));
     }
     Ok(Seeds { first, count: end_exclusive - first })
 }
@@ -219,6 +243,19 @@ mod tests {
             assert!(parse_seeds(s).is_err(), "{s:?} parsed");
         }
         assert!(parse_seeds("5..2").unwrap_err().contains("empty range"));
+    }
+
+    /// `fgo monte-carlo --seeds 0..18446744073709551615` panicked (capacity overflow) and the
+    /// same range ran `run`, `filter monte-carlo`, `bathy simulate`, `ice simulate` and
+    /// `calibrate compare` until killed: the count is bounded, with the bound in the error.
+    #[test]
+    fn seed_ranges_have_a_bound() {
+        for s in ["0..18446744073709551615", "0..=18446744073709551614", "5..10006"] {
+            let e = parse_seeds(s).unwrap_err();
+            assert!(e.contains("10000") && e.contains("seeds"), "{s}: {e}");
+        }
+        assert_eq!(parse_seeds("5..10005"), Ok(Seeds { first: 5, count: MAX_SEEDS }));
+        assert_eq!(parse_seeds("18446744073709551614"), Ok(Seeds::one(u64::MAX - 1)));
     }
 
     #[test]

@@ -46,8 +46,9 @@ pub struct RunArgs {
     /// Output directory (created).
     #[arg(long)]
     pub out: PathBuf,
-    /// Survey altitude for submap/matching scales (default: estimated from near-nadir beams).
-    #[arg(long)]
+    /// Survey altitude for submap/matching scales, m (0..=12000; default: estimated from
+    /// near-nadir beams).
+    #[arg(long, allow_hyphen_values = true, value_parser = args::f64_positive_upto(12_000.0))]
     pub altitude_m: Option<f64>,
     /// Skip PNG figures.
     #[arg(long)]
@@ -104,7 +105,7 @@ fn write_outputs(
     let g1 = pipeline::bathymetry(survey, Some(&out.offsets_spring), cfg.grid_cell_m).context("no soundings to grid")?;
     g0.write_esri_ascii(&dir.join("bathymetry_dead_reckoning.asc"))?;
     g1.write_esri_ascii(&dir.join("bathymetry_corrected.asc"))?;
-    std::fs::write(dir.join("closures.json"), serde_json::to_string_pretty(&out.attempts)?)?;
+    subnav_link::output::write_atomic(dir.join("closures.json"), serde_json::to_string_pretty(&out.attempts)?)?;
     if plots {
         let red = RGBColor(220, 30, 30);
         let white = RGBColor(255, 255, 255);
@@ -114,10 +115,9 @@ fn write_outputs(
             left.push(("truth", white, t));
             right.push(("truth", white, t));
         }
-        plot::maps(
-            &dir.join("map_before_after.png"),
-            &[("before: dead reckoning", &g0, left), ("after: graph SLAM + spring", &g1, right)],
-        )?;
+        let p = dir.join("map_before_after.png");
+        plot::maps(&p, &[("before: dead reckoning", &g0, left), ("after: graph SLAM + spring", &g1, right)])
+            .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }
@@ -165,6 +165,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 }
 
 fn run_csv(args: RunArgs, format: Format) -> Result<ExitCode> {
+    subnav_link::output::refuse_dir_holding_input("--out", &args.out, &[&args.soundings, &args.nav])?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let survey = io::read_survey(&args.soundings, &args.nav)?;
     let alt = match args.altitude_m {
@@ -238,10 +239,9 @@ fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
             }
             if !args.no_plots {
                 let e: Vec<Vec<f64>> = sets.iter().take(3).map(|o| pipeline::sounding_errors(&sim, *o)).collect();
-                plot::error_histograms(
-                    &dir.join("error_histograms.png"),
-                    &[("dead reckoning", &e[0]), ("uniform", &e[1]), ("spring", &e[2])],
-                )?;
+                let p = dir.join("error_histograms.png");
+                plot::error_histograms(&p, &[("dead reckoning", &e[0]), ("uniform", &e[1]), ("spring", &e[2])])
+                    .with_context(|| format!("writing {}", p.display()))?;
                 let t: Vec<f64> = sim.survey.nav.iter().map(|n| n.t_s).collect();
                 let err_of = |o: Option<&[V2]>| -> Vec<f64> {
                     sim.survey
@@ -265,7 +265,8 @@ fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
                         ("spring", RGBColor(0, 150, 0), err_of(Some(&out.offsets_spring))),
                     ],
                     &keys_t,
-                )?;
+                )
+                .with_context(|| format!("writing {}", dir.join("nav_error.png").display()))?;
             }
         }
         evals.push((seed, ev));
@@ -312,7 +313,7 @@ fn simulate(args: SimulateArgs, format: Format) -> Result<ExitCode> {
     };
     let per_seed: Vec<serde_json::Value> = evals.iter().map(|(s, e)| serde_json::json!({"seed": s, "evaluation": e})).collect();
     let doc = serde_json::json!({"pooled": p, "per_seed": per_seed});
-    std::fs::write(args.out.join("evaluation.json"), serde_json::to_string_pretty(&doc)?)?;
+    subnav_link::output::write_atomic(args.out.join("evaluation.json"), serde_json::to_string_pretty(&doc)?)?;
     match format {
         Format::Json => println!("{}", serde_json::to_string(&serde_json::json!({"pooled": p}))?),
         Format::Text => {

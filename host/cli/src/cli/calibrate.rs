@@ -31,9 +31,12 @@ pub enum Mode {
 #[derive(clap::Args, Debug)]
 pub struct HeadArgs {
     /// The head's store (its W25Q flash image; created erased when missing). `subnav qemu
-    /// --flash FILE` boots a head on it.
+    /// --flash FILE` boots a head on it. Any other existing file is refused, untouched.
     #[arg(long, value_name = "FILE")]
     pub flash: PathBuf,
+    /// Make a new erased image at --flash, replacing the file there.
+    #[arg(long)]
+    pub new_flash: bool,
     /// Manufacturing seed of the simulated head (its per-unit errors); omitted: the ideal head.
     #[arg(long)]
     pub build_seed: Option<u64>,
@@ -47,8 +50,8 @@ pub struct HeadArgs {
     /// stored bias; the first session also has the sky turns).
     #[arg(long, default_value_t = calibrate::IMU_POWER_UPS, value_parser = super::args::int_in(1u64..=100))]
     pub imu_power_ups: u64,
-    /// Wall-clock limit of each QEMU session, s.
-    #[arg(long, default_value_t = 1800)]
+    /// Wall-clock limit of each QEMU session, s (1..=604800).
+    #[arg(long, default_value_t = 1800, value_parser = super::args::int_in(1u64..=super::args::MAX_TIMEOUT_S))]
     pub timeout_s: u64,
 }
 
@@ -87,8 +90,22 @@ fn describe(r: &Record) -> String {
     }
 }
 
+/// A refused flash image's error, with the flag that asks for a new image.
+pub fn flash_hint(e: anyhow::Error, cmd: &str) -> anyhow::Error {
+    if e.to_string().contains("not a flash image") {
+        e.context(format!("--flash: `subnav {cmd} --new-flash` replaces the file with a new erased image"))
+    } else {
+        e.context("--flash")
+    }
+}
+
 fn head(a: HeadArgs, format: Format) -> Result<ExitCode> {
-    let flash = calibrate::flash_file(&a.flash)?;
+    if let Some(elf) = &a.elf {
+        // A bad ELF is refused before the flash image is made or opened.
+        subnav_link::defmt_log::DefmtTable::from_elf_path(elf)?;
+        subnav_link::output::refuse_input_as_output("--flash", &a.flash, &[elf])?;
+    }
+    let flash = calibrate::flash_file(&a.flash, a.new_flash).map_err(|e| flash_hint(e, "calibrate head"))?;
     let target = match a.elf {
         Some(elf) => Target::Qemu { elf, timeout: Duration::from_secs(a.timeout_s) },
         None => Target::Native,

@@ -62,12 +62,12 @@ pub struct Sky {
     /// own count, `subnav_core::head::POLARIZATION_UNITS`).
     #[arg(long)]
     pub units: Option<usize>,
-    /// Gravity-vector tilt error, 1-sigma per axis (deg).
-    #[arg(long, default_value_t = 0.01)]
+    /// Gravity-vector tilt error, 1-sigma per axis (deg, 0..=10).
+    #[arg(long, default_value_t = 0.01, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=10.0))]
     pub tilt_sigma_deg: f64,
     /// RMS surface slope for a wavy surface (0 = flat; 16 facets per draw when > 0): i.i.d.
-    /// facets, not a moving sea (see --wind-mps).
-    #[arg(long, default_value_t = 0.0)]
+    /// facets, not a moving sea (see --wind-mps). 0..=1.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=1.0))]
     pub slope_rms: f64,
     /// A moving sea under this wind (m/s at 10 m, 0..=30): sessions of fixes over a moving sea
     /// with the wave tracker's sigma (`subnav_compass::montecarlo::SeaRun`). With --sky.
@@ -206,8 +206,8 @@ pub struct GeolocateArgs {
     /// Sample interval along the track (s, 1..=86400).
     #[arg(long, allow_hyphen_values = true, default_value_t = 60, value_parser = super::args::int_in(1i64..=86_400))]
     pub interval_s: i64,
-    /// Heading knowledge 1-sigma (deg) used to turn relative azimuths into azimuths.
-    #[arg(long, default_value_t = 0.5)]
+    /// Heading knowledge 1-sigma (deg, 0..=180) used to turn relative azimuths into azimuths.
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=180.0))]
     pub heading_sigma_deg: f64,
     /// Trust the heading (do not fit a constant azimuth offset).
     #[arg(long)]
@@ -291,6 +291,13 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 
 fn envelope(args: &EnvelopeArgs, format: Format) -> Result<ExitCode> {
     use subnav_compass::envelope as env;
+    if let (Some(png), Some(table)) = (&args.png, &args.table) {
+        subnav_link::output::check_outputs(&[("--png", png), ("--table", table)], &[])?;
+    }
+    if let Some(p) = args.png.as_ref().filter(|p| !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))) {
+        // The encoder picks the format by the extension ("ImageError(Unsupported(...))").
+        bail!("--png {}: the figure is written as PNG; give a path ending in .png", p.display());
+    }
     for (what, empty) in [
         ("--depths-m", args.depths_m.is_empty()),
         ("--winds-mps", args.winds_mps.is_empty()),
@@ -515,6 +522,9 @@ fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
             Some(t)
         }
     };
+    if let (Some(out), Some(input)) = (&args.output, &args.compare) {
+        subnav_link::output::refuse_input_as_output("--output", out, &[input])?;
+    }
     // Read the reference first: a bad file is refused before anything is written.
     let reference = match &args.compare {
         Some(p) => {
@@ -527,12 +537,8 @@ fn field(args: &FieldArgs, format: Format) -> Result<ExitCode> {
     let f = rf::ReferenceField::simulated_with(args.sun_zenith_deg, args.depth_m, args.wind_mps, water, args.seed, table);
     let csv = f.to_csv();
     match &args.output {
-        Some(p) => {
-            // Whole or nothing: a temporary file beside it, renamed over it.
-            let tmp = p.with_extension("csv.partial");
-            std::fs::write(&tmp, csv.as_bytes()).with_context(|| format!("writing {}", tmp.display()))?;
-            std::fs::rename(&tmp, p).with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
-        }
+        // Whole or nothing (a device written in place).
+        Some(p) => subnav_link::output::write_atomic(p, csv)?,
         None => print!("{csv}"),
     }
     if let Some((p, r)) = reference {
@@ -583,7 +589,7 @@ fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
         bail!("--emit-csv writes flat-surface draws: leave out --wind-mps and --sky");
     }
     if let Some(path) = &args.emit_csv {
-        emit_csv(&cfg, path)?;
+        emit_csv(&cfg, path).with_context(|| format!("writing {}", path.display()))?;
     }
     let r = montecarlo::run(&cfg);
     match format {
@@ -646,6 +652,9 @@ fn geolocate(args: &GeolocateArgs, format: Format) -> Result<ExitCode> {
         ..geoloc::GeoConfig::default()
     };
     let r = geoloc::run(&cfg);
+    if r.fitted == 0 {
+        bail!("no trial of {} gave a position (no sun fixes to fit): no statistics", r.trials);
+    }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&r)?),
         Format::Text => println!(

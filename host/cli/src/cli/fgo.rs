@@ -52,11 +52,11 @@ pub enum Sub {
         /// Write the real-time (fixed-lag) outputs instead of the batch-optimised nodes.
         #[arg(long)]
         realtime: bool,
-        /// Fixed-lag window of the real-time smoother, seconds.
-        #[arg(long, default_value_t = 6.0)]
+        /// Fixed-lag window of the real-time smoother, seconds (> 0, at most a day).
+        #[arg(long, default_value_t = 6.0, allow_hyphen_values = true, value_parser = args::f64_positive_upto(args::MAX_SIM_DURATION_S))]
         lag_s: f64,
-        /// Confidence of the chi-square gate.
-        #[arg(long, default_value_t = 0.99)]
+        /// Confidence of the chi-square gate (in (0, 1): 1e-9..=0.999999999).
+        #[arg(long, default_value_t = 0.99, allow_hyphen_values = true, value_parser = args::f64_in(1e-9..=0.999_999_999))]
         confidence: f64,
         /// Write every gating decision (JSON lines).
         #[arg(long)]
@@ -105,14 +105,15 @@ pub enum Sub {
         /// The seed's fixed chi-square test instead of the adaptive one (for comparison).
         #[arg(long)]
         fixed_gate: bool,
-        /// Confidence of the chi-square gate.
-        #[arg(long, default_value_t = 0.99)]
+        /// Confidence of the chi-square gate (in (0, 1): 1e-9..=0.999999999).
+        #[arg(long, default_value_t = 0.99, allow_hyphen_values = true, value_parser = args::f64_in(1e-9..=0.999_999_999))]
         confidence: f64,
         /// Estimate a range bias per beacon (zero-mean prior, sigma 10 m).
         #[arg(long)]
         range_bias: bool,
         /// Multiply the file's odometry covariances by this (a DVL/INS noise model that is too tight).
-        #[arg(long, default_value_t = 1.0)]
+        /// (> 0, at most 1e6)
+        #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = args::f64_positive_upto(1e6))]
         odometry_cov_scale: f64,
         /// Scale the odometry and range noise to the data (robust variance components) before gating.
         #[arg(long)]
@@ -170,8 +171,7 @@ fn is_json(p: &Path) -> bool {
 }
 
 fn write_estimates(path: &Path, est: &[Estimate]) -> Result<()> {
-    let f = File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-    let mut w = BufWriter::new(f);
+    let mut w = BufWriter::new(subnav_link::output::AtomicFile::create(path)?);
     let json = is_json(path);
     if !json {
         writeln!(
@@ -227,7 +227,7 @@ fn write_estimates(path: &Path, est: &[Estimate]) -> Result<()> {
             )?;
         }
     }
-    w.flush()?;
+    w.into_inner().map_err(|e| e.into_error())?.commit()?;
     Ok(())
 }
 
@@ -255,8 +255,9 @@ fn run_pyfg(input: &Path, out: &Path, o: &PyfgOpts, truth: Option<&Path>, format
     }
     use subnav_fgo::range2d::{Beacons, Graph2, Init, LmOptions2, RangeGate, ape_rigid_2d};
     let bpath = beacons_path(out);
-    subnav_link::output::refuse_input_as_output("--out", out, &[input])?;
-    subnav_link::output::refuse_input_as_output("the beacons file", &bpath, &[input])?;
+    let mut inputs = vec![input];
+    inputs.extend(truth);
+    subnav_link::output::check_outputs(&[("--out", out), ("the beacons file", &bpath)], &inputs)?;
     if !(confidence > 0.0 && confidence < 1.0) {
         bail!("--confidence must be in (0, 1)");
     }
@@ -382,17 +383,20 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             if !(duration_s > 10.0 && duration_s.is_finite() && (0.0..1.0).contains(&abnormal_fraction)) {
                 bail!("--duration-s must be > 10 and --abnormal-fraction in [0, 1)");
             }
+            let outputs: Vec<(&str, &Path)> =
+                [("--out", Some(out.as_path())), ("--truth", truth.as_deref())].into_iter().filter_map(|(f, p)| Some((f, p?))).collect();
+            subnav_link::output::check_outputs(&outputs, &[])?;
             let sim = simulate(&SimConfig { seed, duration_s, abnormal_fraction, ..Default::default() });
-            let f = File::create(&out).with_context(|| format!("cannot create {}", out.display()))?;
-            sim.log.write(BufWriter::new(f))?;
+            let mut log = Vec::new();
+            sim.log.write(&mut log)?;
+            subnav_link::output::write_atomic(&out, log)?;
             if let Some(t) = truth {
-                let mut w = BufWriter::new(File::create(&t).with_context(|| format!("cannot create {}", t.display()))?);
-                writeln!(w, "t_s,east_m,north_m,up_m")?;
+                let mut w = String::from("t_s,east_m,north_m,up_m\n");
                 for (t, s) in sim.truth.t_s.iter().zip(&sim.truth.states) {
                     let p = s.nav.pos_enu_m;
-                    writeln!(w, "{t},{},{},{}", p.x, p.y, p.z)?;
+                    w += &format!("{t},{},{},{}\n", p.x, p.y, p.z);
                 }
-                w.flush()?;
+                subnav_link::output::write_atomic(&t, w)?;
             }
             match format {
                 Format::Json => println!("{}", serde_json::to_string(&sim.stats)?),
@@ -410,8 +414,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             let s = montecarlo::run_all(runs, first_seed, &base, |i| pb.set_position(i as u64))?;
             pb.finish_and_clear();
             if let Some(p) = out {
-                let f = File::create(&p).with_context(|| format!("cannot create {}", p.display()))?;
-                serde_json::to_writer_pretty(BufWriter::new(f), &s)?;
+                subnav_link::output::write_atomic(&p, serde_json::to_vec_pretty(&s)?)?;
             }
             match format {
                 Format::Json => {
@@ -457,10 +460,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Sub::Replay { input, out, no_gating, realtime, lag_s, confidence, decisions, quiet } => {
-            subnav_link::output::refuse_input_as_output("--out", &out, &[&input])?;
-            if let Some(d) = &decisions {
-                subnav_link::output::refuse_input_as_output("--decisions", d, &[&input])?;
-            }
+            let outputs: Vec<(&str, &Path)> = [("--out", Some(out.as_path())), ("--decisions", decisions.as_deref())]
+                .into_iter()
+                .filter_map(|(f, p)| Some((f, p?)))
+                .collect();
+            subnav_link::output::check_outputs(&outputs, &[&input])?;
             let f = File::open(&input).with_context(|| format!("cannot open {}", input.display()))?;
             let log = SensorLog::read(BufReader::new(f)).with_context(|| format!("reading {}", input.display()))?;
             let cfg = SmootherConfig {
@@ -473,12 +477,12 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             pb.finish_and_clear();
             write_estimates(&out, if realtime { &res.realtime } else { &res.batch })?;
             if let Some(d) = decisions {
-                let mut w = BufWriter::new(File::create(&d).with_context(|| format!("cannot create {}", d.display()))?);
+                let mut w = Vec::new();
                 for x in &res.gate_log.decisions {
                     serde_json::to_writer(&mut w, x)?;
                     writeln!(w)?;
                 }
-                w.flush()?;
+                subnav_link::output::write_atomic(&d, w)?;
             }
             let lg = &res.gate_log;
             let summary = serde_json::json!({

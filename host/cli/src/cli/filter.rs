@@ -84,6 +84,9 @@ pub enum Sub {
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     match args.command {
         Sub::Simulate { out, truth, seed, duration_s } => {
+            if let Some(t) = &truth {
+                subnav_link::output::check_outputs(&[("--out", &out), ("--truth", t)], &[])?;
+            }
             let cfg = sim::DiveConfig { duration_s, ..sim::DiveConfig::default() };
             let dive = sim::generate(&cfg, seed);
             let t0 = dive.truth.first().context("empty dive")?;
@@ -93,7 +96,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                 yaw_rad: dive.init_yaw_rad as f32,
                 vel_ned_mps: t0.vel_ned_mps.map(|v| v as f32),
             };
-            std::fs::write(&out, replay::write_log(Some(init), &dive.events)).with_context(|| format!("writing {}", out.display()))?;
+            subnav_link::output::write_atomic(&out, replay::write_log(Some(init), &dive.events))
+                .with_context(|| format!("writing {}", out.display()))?;
             if let Some(p) = truth {
                 let mut s = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
                 for t in &dive.truth {
@@ -106,7 +110,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
                         t.yaw_rad
                     ));
                 }
-                std::fs::write(&p, s).with_context(|| format!("writing {}", p.display()))?;
+                subnav_link::output::write_atomic(&p, s).with_context(|| format!("writing {}", p.display()))?;
             }
             eprintln!("wrote {} events to {}", dive.events.len(), out.display());
             Ok(ExitCode::SUCCESS)

@@ -92,10 +92,11 @@ pub struct SimulateArgs {
     pub images: bool,
     /// The camera sees nothing (turbid water) for this many seconds, starting at
     /// --outage-start-s (so the sonar and depth carry the odometry).
-    #[arg(long, default_value_t = 0.0)]
+    /// (0..=86400).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = args::f64_in(0.0..=args::MAX_SIM_DURATION_S))]
     pub outage_s: f64,
-    /// Start of the vision outage, s.
-    #[arg(long, default_value_t = 100.0)]
+    /// Start of the vision outage, s (0..=86400).
+    #[arg(long, default_value_t = 100.0, allow_hyphen_values = true, value_parser = args::f64_in(0.0..=args::MAX_SIM_DURATION_S))]
     pub outage_start_s: f64,
     #[command(flatten)]
     pub tuning: Tuning,
@@ -127,11 +128,24 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 }
 
 fn run_dir(args: RunArgs, format: Format) -> Result<ExitCode> {
+    if let Some(out) = &args.out {
+        subnav_link::output::refuse_dir_holding_input("--out", out, &[&args.input])?;
+    }
     let (base, tracker) = args.tuning.configs();
     let dir = &args.input;
     let mut data = Dataset::read_dir(dir)?;
     data.track_images(tracker)?;
     let (est, stats) = odometry::run(&data, &base, &data.cam)?;
+    if est.is_empty() {
+        // "0 poses ... ATE 0.000 m" was printed as a success.
+        bail!(
+            "{}: no poses estimated ({} frames, {} features used, {} IMU samples): nothing to report",
+            dir.display(),
+            data.frames.len(),
+            stats.features_used,
+            data.imu.len()
+        );
+    }
     let metrics = (!data.truth.is_empty()).then(|| evaluate(&est, &data.truth, &RPE_LENGTHS_M));
     if let Some(out) = &args.out {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -142,8 +156,8 @@ fn run_dir(args: RunArgs, format: Format) -> Result<ExitCode> {
             let sd = |i: usize| e.cov[(3 + i, 3 + i)].max(0.0).sqrt();
             let _ = writeln!(s, "{:.6},{},{},{},{},{},{},{},{},{},{}", e.t_s, q.w, q.i, q.j, q.k, p.x, p.y, p.z, sd(0), sd(1), sd(2));
         }
-        std::fs::write(out.join("trajectory.csv"), s)?;
-        std::fs::write(
+        subnav_link::output::write_atomic(out.join("trajectory.csv"), s)?;
+        subnav_link::output::write_atomic(
             out.join("metrics.json"),
             serde_json::to_string_pretty(&json!({"stats": stats, "frontend": data.frontend, "metrics": metrics}))?,
         )?;
@@ -239,23 +253,34 @@ fn simulate_runs(args: SimulateArgs, format: Format) -> Result<ExitCode> {
         }));
     }
     if let Some(out) = &args.out {
-        std::fs::create_dir_all(out)?;
-        std::fs::write(out.join("results.json"), serde_json::to_string_pretty(&json!({"summary": summary, "runs": all}))?)?;
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        subnav_link::output::write_atomic(
+            out.join("results.json"),
+            serde_json::to_string_pretty(&json!({"summary": summary, "runs": all}))?,
+        )?;
     }
     match format {
         Format::Json => println!("{}", json!({ "summary": summary })),
         Format::Text => {
             let source = if args.images { "rendered stereo images, FAST + KLT front end" } else { "synthetic feature tracks" };
             let outage = outage.map_or(String::new(), |(a, d)| format!(", vision outage {d:.0} s from {a:.0} s"));
-            println!("{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs)", args.seeds.count, args.distance_m);
+            println!(
+                "{} seeded runs of {:.0} m, {source}{outage} (mean [max] over runs; n/a: no data, e.g. RPE over more than the track)",
+                args.seeds.count, args.distance_m
+            );
             println!(
                 "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",
                 "variant", "drift %", "ATE m", "ATE deg", "RPE50 m", "RPE100 m", "NEES ori", "NEES pos"
             );
             for s in &summary {
+                // A figure with nothing behind it (RPE over a length longer than the track) is
+                // said to be so, not printed as NaN.
                 let c = |k: &str| {
                     let a = &s[k];
-                    format!("{:.3} [{:.3}]", a[0].as_f64().unwrap_or(f64::NAN), a[1].as_f64().unwrap_or(f64::NAN))
+                    match (a[0].as_f64().filter(|v| v.is_finite()), a[1].as_f64().filter(|v| v.is_finite())) {
+                        (Some(mean), Some(max)) => format!("{mean:.3} [{max:.3}]"),
+                        _ => "n/a".to_string(),
+                    }
                 };
                 println!(
                     "{:<17} {:>16} {:>16} {:>14} {:>16} {:>16} {:>14} {:>14}",

@@ -12,7 +12,6 @@
 //! Outputs in `--out-dir`: `map.json`, `map.graphml`, `map.png`, `fixes.bin` (COBS frames of
 //! `Downlink` `PositionFix` commands, ready for the downlink; this command does not send them).
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -87,13 +86,11 @@ fn bar(quiet: bool, what: &str) -> ProgressBar {
 
 fn write_outputs(dir: &Path, res: &SurveyResult) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    std::fs::write(dir.join("map.json"), export::to_json(&res.map, Some(&res.report))?)?;
-    std::fs::write(dir.join("map.graphml"), export::to_graphml(&res.map))?;
-    export::plot(&dir.join("map.png"), &res.map, &res.track)?;
-    let mut f = std::fs::File::create(dir.join("fixes.bin"))?;
-    for fr in &res.fix_frames {
-        f.write_all(fr)?;
-    }
+    subnav_link::output::write_atomic(dir.join("map.json"), export::to_json(&res.map, Some(&res.report))?)?;
+    subnav_link::output::write_atomic(dir.join("map.graphml"), export::to_graphml(&res.map))?;
+    let png = dir.join("map.png");
+    export::plot(&png, &res.map, &res.track).with_context(|| format!("writing {}", png.display()))?;
+    subnav_link::output::write_atomic(dir.join("fixes.bin"), res.fix_frames.concat())?;
     Ok(())
 }
 
@@ -259,7 +256,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             })?;
             pb.finish_and_clear();
             if let Some(d) = &images {
-                std::fs::write(d.join("nav.csv"), nav_csv)?;
+                subnav_link::output::write_atomic(d.join("nav.csv"), nav_csv)?;
             }
             if let Some(d) = &out_dir {
                 write_outputs(d, &res)?;
@@ -268,6 +265,9 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Sub::Build { nav, images, out_dir, train_after_s, quiet } => {
+            if let Some(d) = &out_dir {
+                subnav_link::output::refuse_dir_holding_input("--out-dir", d, &[&nav, &images])?;
+            }
             let navs = read_nav(&nav)?;
             let (frames, start) = frames_from_dir(&navs, &images, &mut |w| eprintln!("warning: {w}"))?;
             let span = frames.last().map_or(0.0, |f| f.t_s) - frames.first().map_or(0.0, |f| f.t_s);

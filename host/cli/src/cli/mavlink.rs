@@ -137,7 +137,7 @@ pub fn finish(bridge: Option<Arc<Bridge>>, o: &BridgeOpts) -> Result<()> {
         eprintln!("{l}");
     }
     if let Some(p) = &o.mavlink_summary {
-        std::fs::write(p, serde_json::to_string_pretty(&s)?).with_context(|| format!("writing {}", p.display()))?;
+        subnav_link::output::write_atomic(p, serde_json::to_string_pretty(&s)?).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }
@@ -177,8 +177,8 @@ pub struct Args {
     #[command(flatten)]
     pub bridge: BridgeOpts,
     /// Simulated and replayed sources: seconds of dive per second (1 = real time, what an
-    /// autopilot expects).
-    #[arg(long, default_value_t = 1.0, value_parser = super::args::f64_positive_upto(1e3))]
+    /// autopilot expects; 0.1..=1000).
+    #[arg(long, default_value_t = 1.0, value_parser = super::args::f64_in(super::args::MIN_SPEED..=1e3))]
     pub speed: f64,
     /// native: the scenario's seed.
     #[arg(long)]

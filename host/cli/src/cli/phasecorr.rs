@@ -24,8 +24,9 @@ pub struct Args {
     /// Search every sample of the upsampled neighbourhood (as scikit-image does) instead of coarse-to-fine.
     #[arg(long)]
     pub full_search: bool,
-    /// Time the registration: repeat it N times (one core) and report the mean time per pair.
-    #[arg(long, default_value_t = 0)]
+    /// Time the registration: repeat it N times (one core) and report the mean time per pair
+    /// (0..=10000).
+    #[arg(long, default_value_t = 0, value_parser = super::args::int_in(0u32..=super::args::MAX_REPEATS))]
     pub time_repeat: u32,
 }
 

@@ -19,8 +19,8 @@ pub struct Args {
     /// Firmware time to run before the board exits, ms (0 = until the firmware stops itself; at most a day).
     #[arg(long, allow_hyphen_values = true, default_value_t = 5_000, value_parser = super::args::int_in(0u64..=86_400_000))]
     pub run_ms: u64,
-    /// Wall-clock limit, seconds.
-    #[arg(long, default_value_t = 120)]
+    /// Wall-clock limit, seconds, connecting included (1..=604800, a week).
+    #[arg(long, default_value_t = 120, value_parser = super::args::int_in(1u64..=super::args::MAX_TIMEOUT_S))]
     pub timeout_s: u64,
     /// Write a lossless recording (uplink, defmt and downlink bytes with host receive times) to
     /// this file; `subnav decode --file`, `export` and `report` read it.
@@ -29,16 +29,20 @@ pub struct Args {
     /// QEMU executable.
     #[arg(long, default_value = "qemu-system-arm")]
     pub qemu: PathBuf,
-    /// QEMU -icount shift (virtual ns per instruction = 2^shift).
-    #[arg(long, default_value_t = 3)]
+    /// QEMU -icount shift (virtual ns per instruction = 2^shift; 0..=10, QEMU's range).
+    #[arg(long, default_value_t = 3, value_parser = super::args::int_in(0u8..=10))]
     pub icount_shift: u8,
     /// Run without the simulated sensors (every bus transaction is NACKed).
     #[arg(long)]
     pub no_sensors: bool,
     /// Keep the head's store (its W25Q flash) in this file: configuration and calibrations
     /// survive across runs (created erased when missing). Default: an erased flash in memory.
+    /// Any other existing file is refused, untouched.
     #[arg(long, value_name = "FILE")]
     pub flash: Option<PathBuf>,
+    /// Make a new erased image at --flash, replacing the file there.
+    #[arg(long, requires = "flash")]
+    pub new_flash: bool,
     /// Seed of the simulated dive (default scenario: survey at 10 m, Bay of Biscay, June morning).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -50,6 +54,17 @@ pub struct Args {
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    // Before any output or the flash image is touched: the ELF, the outputs.
+    subnav_link::defmt_log::DefmtTable::from_elf_path(&args.elf)?;
+    let outputs: Vec<(&str, &std::path::Path)> = [
+        ("--record", args.record.as_deref()),
+        ("--flash", args.flash.as_deref()),
+        ("--mavlink-summary", args.mavlink.bridge.mavlink_summary.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(f, p)| Some((f, p?)))
+    .collect();
+    subnav_link::output::check_outputs(&outputs, &[&args.elf])?;
     let mut cfg = QemuConfig::new(&args.elf);
     cfg.qemu = args.qemu;
     cfg.run_ms = (args.run_ms > 0).then_some(args.run_ms);
@@ -63,7 +78,11 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         cfg.board_args = scenario.board_args();
         let head = subnav_sil::SimHead::new(&scenario);
         match &args.flash {
-            Some(p) => Box::new(head.with_flash(subnav_sil::chips::w25q::W25qModel::with_file(p)?)),
+            Some(p) => {
+                use subnav_sil::chips::w25q::W25qModel;
+                let chip = if args.new_flash { W25qModel::new_file(p) } else { W25qModel::with_file(p) };
+                Box::new(head.with_flash(chip.map_err(|e| super::calibrate::flash_hint(e, "qemu"))?))
+            }
             None => Box::new(head),
         }
     };

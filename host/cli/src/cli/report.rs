@@ -63,8 +63,16 @@ pub struct Page {
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let (recording, args) = match args.command {
-        Sub::Recording { recording, page } => (recording, page),
+        Sub::Recording { recording, page } => {
+            // Before anything is read: the report's directory may not hold an input.
+            let inputs: Vec<&std::path::Path> =
+                [Some(recording.as_path()), page.truth.as_deref(), page.elf.as_deref()].into_iter().flatten().collect();
+            subnav_link::output::refuse_dir_holding_input("--out", &page.out, &inputs)?;
+            (recording, page)
+        }
         Sub::Simulate { seed, duration_s, page } => {
+            let inputs: Vec<&std::path::Path> = [page.truth.as_deref(), page.elf.as_deref()].into_iter().flatten().collect();
+            subnav_link::output::refuse_dir_holding_input("--out", &page.out, &inputs)?;
             std::fs::create_dir_all(&page.out).with_context(|| format!("creating {}", page.out.display()))?;
             let p = page.out.join("dive.snrec");
             let bar = super::record::progress_bar(0, "simulating the dive");

@@ -51,8 +51,8 @@ pub struct Args {
     /// Write the truth here (CSV `t_s,n_m,e_m,d_m,yaw_rad` at 10 Hz, for `subnav report --truth`).
     #[arg(long)]
     pub truth: Option<PathBuf>,
-    /// Wall-clock limit for a QEMU run, s.
-    #[arg(long, default_value_t = 1800)]
+    /// Wall-clock limit for a QEMU run, s (1..=604800).
+    #[arg(long, default_value_t = 1800, value_parser = super::args::int_in(1u64..=super::args::MAX_TIMEOUT_S))]
     pub timeout_s: u64,
     /// No progress bar.
     #[arg(long)]
@@ -66,8 +66,8 @@ pub struct Args {
     #[command(flatten)]
     pub mavlink: super::mavlink::MavlinkArgs,
     /// Native runs: at most this many seconds of dive per second of wall time (e.g. 1 to watch
-    /// in real time; default: as fast as it goes). The results are the same at any speed.
-    #[arg(long, requires = "native", value_parser = super::args::f64_positive_upto(1e6))]
+    /// in real time; default: as fast as it goes; 0.1..=1e6). The results are the same at any speed.
+    #[arg(long, requires = "native", value_parser = super::args::f64_in(super::args::MIN_SPEED..=1e6))]
     pub speed: Option<f64>,
     /// Native runs at a --speed: the telemetry reaches the host this long after the head wrote
     /// it, ms (a serial or acoustic link's delay; the bridge stamps the time of validity).
@@ -128,11 +128,14 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
         );
     }
     let mut ok = true;
+    // Runs with no aided solution have no error statistics (NaN): an error, not a mean of NaN.
+    let mut unaided = 0usize;
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
         let run = run_native_scored(&sc, None);
         let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc);
         ok &= r.nonfinite_values == 0;
+        unaided += usize::from(r.aided_messages == 0);
         if format == Format::Text {
             println!(
                 "{seed:>4}  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}  {}",
@@ -175,14 +178,38 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     if !ok {
         eprintln!("error: a run produced non-finite estimates");
     }
-    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    if unaided > 0 {
+        eprintln!(
+            "error: {unaided} of {} runs had no aided navigation solution ({} s dives): no error statistics; run longer dives",
+            seeds.count, sc.duration_s
+        );
+    }
+    Ok(if ok && unaided == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
+    if let (Some(_), Some(elf)) = (&args.seeds, &args.elf) {
+        bail!("--elf {} with --seeds: seeded runs are native only; drop --elf or --seeds", elf.display());
+    }
     let inputs: Vec<&std::path::Path> = args.scenario.as_deref().into_iter().chain(args.elf.as_deref()).collect();
-    for (flag, out) in [("--record", &args.record), ("--truth", &args.truth)] {
-        if let Some(p) = out {
-            subnav_link::output::refuse_input_as_output(flag, p, &inputs)?;
+    // The outputs, with the files --report writes where --record / --truth do not say.
+    let report_rec = args.report.as_ref().filter(|_| args.record.is_none()).map(|d| d.join("dive.snrec"));
+    let report_truth = args.report.as_ref().filter(|_| args.truth.is_none()).map(|d| d.join("truth.csv"));
+    let outputs: Vec<(&str, &std::path::Path)> = [
+        ("--record", args.record.as_deref()),
+        ("--truth", args.truth.as_deref()),
+        ("--report", report_rec.as_deref()),
+        ("--report", report_truth.as_deref()),
+        ("--mavlink-summary", args.mavlink.bridge.mavlink_summary.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(f, p)| Some((f, p?)))
+    .collect();
+    subnav_link::output::check_outputs(&outputs, &inputs)?;
+    if let Some(dir) = &args.report {
+        subnav_link::output::refuse_dir_holding_input("--report", dir, &inputs)?;
+        if let Some(rec) = args.record.as_deref().filter(|p| subnav_link::output::is_special(p)) {
+            bail!("--record {} is not a regular file, and --report reads the recording back; record to a file", rec.display());
         }
     }
     let sc = load(&args)?;
@@ -290,7 +317,8 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     super::mavlink::finish(bridge, &args.mavlink.bridge)?;
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
-        std::fs::write(p, truth_csv(&sc, 0.1)).with_context(|| format!("writing the truth {}", p.display()))?;
+        subnav_link::output::write_atomic(p, truth_csv(&sc, 0.1).as_bytes())
+            .with_context(|| format!("writing the truth {}", p.display()))?;
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&result)?),
@@ -309,7 +337,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             result.exit_code, result.nonfinite_values
         );
     }
-    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    // Statistics from nothing ("RMS NaN m ... NaN % of -0 m") are not a result.
+    let aided = result.aided_messages > 0;
+    if !aided {
+        eprintln!(
+            "error: no aided navigation solution in the {} s dive ({} navigation messages, none aided): no error statistics; run a longer dive",
+            sc.duration_s, result.nav_messages
+        );
+    }
+    Ok(if ok && aided { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 /// The report of a run: its recording with the truth, and the map's nodes and the closures the
@@ -343,23 +379,30 @@ fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: 
 
 fn print_summary(r: &DiveResult) {
     println!("navigation messages   {} ({} aided, first at {:?} s)", r.nav_messages, r.aided_messages, r.first_aided_s);
-    println!(
-        "heading               RMSE {:.3} deg, max {:.3} deg, {:.1} % within 3 sigma (converged from {:?} s; all aided: RMSE {:.2} deg)",
-        r.heading_rmse_deg,
-        r.heading_max_abs_err_deg,
-        100.0 * r.heading_within_3_sigma,
-        r.heading_converged_s,
-        r.heading_rmse_all_aided_deg
-    );
-    println!(
-        "horizontal position   RMS {:.2} m, final {:.2} m ({:.3} % of {:.0} m travelled), max {:.2} m, {:.1} % within 3 sigma",
-        r.horizontal_rms_err_m,
-        r.horizontal_final_err_m,
-        r.final_err_pct_of_distance,
-        r.distance_m,
-        r.horizontal_max_err_m,
-        100.0 * r.within_3_sigma
-    );
+    if r.aided_messages == 0 {
+        println!("heading, position     no aided solution: no error statistics");
+    } else {
+        println!(
+            "heading               RMSE {:.3} deg, max {:.3} deg, {:.1} % within 3 sigma (converged from {:?} s; all aided: RMSE {:.2} deg)",
+            r.heading_rmse_deg,
+            r.heading_max_abs_err_deg,
+            100.0 * r.heading_within_3_sigma,
+            r.heading_converged_s,
+            r.heading_rmse_all_aided_deg
+        );
+        println!(
+            "horizontal position   RMS {:.2} m, final {:.2} m ({}), max {:.2} m, {:.1} % within 3 sigma",
+            r.horizontal_rms_err_m,
+            r.horizontal_final_err_m,
+            if r.distance_m > 0.0 {
+                format!("{:.3} % of {:.0} m travelled", r.final_err_pct_of_distance, r.distance_m)
+            } else {
+                "no distance travelled".to_string()
+            },
+            r.horizontal_max_err_m,
+            100.0 * r.within_3_sigma
+        );
+    }
     println!("depth                 RMSE {:.3} m (raw sensor {:.4} m)", r.depth_rmse_m, r.raw_depth_rmse_m);
     println!("compass alone         {} fixes, {} without, RMSE {:.2} deg", r.compass_fixes, r.compass_no_fix, r.compass_rmse_deg);
     println!("bus transactions      {}  corrupt frames {}  non-finite values {}", r.bus_transactions, r.corrupt_frames, r.nonfinite_values);

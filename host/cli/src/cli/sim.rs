@@ -251,7 +251,7 @@ pub fn scenario(a: &Args) -> Result<Scenario> {
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let sc = scenario(&args)?;
     let json = serde_json::to_string_pretty(&sc)?;
-    std::fs::write(&args.out, json + "\n").with_context(|| format!("writing {}", args.out.display()))?;
+    subnav_link::output::write_atomic(&args.out, json + "\n").with_context(|| format!("writing {}", args.out.display()))?;
     let fixes = sc.fixes().len();
     match format {
         Format::Json => println!(

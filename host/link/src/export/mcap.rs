@@ -28,8 +28,12 @@ struct Out<W: Write + Seek> {
     summary: McapSummary,
 }
 
+/// The MCAP error with its cause (an I/O error names the file: "No space left on device").
 fn e(err: mcap::McapError) -> anyhow::Error {
-    anyhow!("writing MCAP: {err}")
+    match &err {
+        mcap::McapError::Io(io) => anyhow!("writing MCAP: {io}"),
+        _ => anyhow!("writing MCAP: {err}"),
+    }
 }
 
 impl<W: Write + Seek> Out<W> {

@@ -40,8 +40,12 @@ impl std::fmt::Display for RecordError {
             RecordError::NotARecording => {
                 write!(f, "not a subnav recording (no magic); raw uplink byte files are read by `subnav decode --file`")
             }
+            RecordError::UnsupportedVersion(v) if *v > VERSION => write!(
+                f,
+                "recording format version {v} is newer than this host reads (found version {v}, expected 1..={VERSION}); update subnav"
+            ),
             RecordError::UnsupportedVersion(v) => {
-                write!(f, "recording format version {v} is newer than this host reads ({VERSION}); update subnav")
+                write!(f, "recording format version {v} does not exist (found version {v}, expected 1..={VERSION}): the header is damaged")
             }
             RecordError::TruncatedHeader => write!(f, "the recording header is truncated (the file was cut before any data)"),
             RecordError::HeaderCrc => write!(f, "the recording header is damaged (CRC mismatch)"),
@@ -392,4 +396,19 @@ pub fn read_bytes(bytes: &[u8]) -> Result<Loaded, RecordError> {
 pub fn read_file(path: &Path) -> anyhow::Result<Loaded> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     read_bytes(&bytes).with_context(|| format!("reading the recording {}", path.display()))
+}
+
+#[cfg(test)]
+mod version_tests {
+    use super::*;
+
+    /// "version 0 is newer than this host reads (1)": a version error says what was found and
+    /// what is expected.
+    #[test]
+    fn a_version_error_says_found_and_expected() {
+        let old = RecordError::UnsupportedVersion(0).to_string();
+        assert!(old.contains("found version 0") && old.contains("expected 1..=1") && !old.contains("newer"), "{old}");
+        let new = RecordError::UnsupportedVersion(7).to_string();
+        assert!(new.contains("found version 7") && new.contains("expected 1..=1") && new.contains("newer"), "{new}");
+    }
 }

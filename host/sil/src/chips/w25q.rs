@@ -30,6 +30,45 @@ pub const CAPACITY_BYTES: usize = 2 * 1024 * 1024;
 pub const SECTOR_BYTES: usize = 4096;
 pub const PAGE_BYTES: usize = 256;
 pub const JEDEC_ID: [u8; 3] = [0xEF, 0x40, 0x15];
+/// Bytes at the start of the chip the head's store uses (the firmware's `store::STORE_RANGE`);
+/// an image is erased (0xFF) beyond them.
+pub const STORE_BYTES: usize = subnav_firmware::store::STORE_RANGE.end as usize;
+
+/// A flash image file's metadata: a regular file of exactly [`CAPACITY_BYTES`] (checked before
+/// anything is read: `/dev/zero` or a 4 GB file is never read).
+fn image_size_ok(path: &Path, md: &std::fs::Metadata) -> anyhow::Result<()> {
+    if !md.is_file() {
+        anyhow::bail!(
+            "flash image {}: not a regular file (a device, a FIFO or a directory); a flash image is a file of {CAPACITY_BYTES} bytes",
+            path.display()
+        );
+    }
+    if md.len() != CAPACITY_BYTES as u64 {
+        anyhow::bail!(
+            "flash image {}: {} bytes, expected exactly {CAPACITY_BYTES} (a W25Q16JV image): not a flash image, left untouched; give a new path (created erased) or ask for a new image to replace it",
+            path.display(),
+            md.len()
+        );
+    }
+    Ok(())
+}
+
+/// Whether `mem` (read from `path`) has the form of a flash image: [`CAPACITY_BYTES`] long and
+/// erased beyond the store's [`STORE_BYTES`] (the head writes nothing there).
+pub fn check_image(path: &Path, mem: &[u8]) -> anyhow::Result<()> {
+    if mem.len() != CAPACITY_BYTES {
+        anyhow::bail!("flash image {}: {} bytes, expected exactly {CAPACITY_BYTES}", path.display(), mem.len());
+    }
+    if let Some(at) = mem[STORE_BYTES..].iter().position(|&b| b != 0xFF) {
+        anyhow::bail!(
+            "flash image {}: byte {} (beyond the store's first {STORE_BYTES} bytes) is 0x{:02X}, expected erased 0xFF: not a flash image, left untouched",
+            path.display(),
+            STORE_BYTES + at,
+            mem[STORE_BYTES + at]
+        );
+    }
+    Ok(())
+}
 
 /// Where the power fails.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -87,7 +126,8 @@ impl SpiChip for SharedFlash {
 
 pub struct W25qModel {
     mem: Vec<u8>,
-    file: Option<File>,
+    /// The image file and its path (for messages).
+    file: Option<(File, std::path::PathBuf)>,
     phase: Phase,
     /// Bytes of the page program being clocked in.
     program: Vec<u8>,
@@ -129,28 +169,55 @@ impl W25qModel {
         }
     }
 
-    /// A chip whose contents live in `path` (created erased when missing). Errors name the file.
+    /// A chip whose contents live in `path`: an existing flash image ([`check_image`]: a regular
+    /// file of exactly [`CAPACITY_BYTES`], erased beyond the store's [`STORE_BYTES`]), or a new
+    /// erased one when nothing is at `path`. Any other file, a device or a directory is refused
+    /// before it is read or written. Errors name the file.
     pub fn with_file(path: &Path) -> anyhow::Result<Self> {
         use anyhow::Context as _;
+        match std::fs::metadata(path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Self::new_file(path),
+            Err(e) => Err(e).with_context(|| format!("flash image {}: cannot read", path.display())),
+            Ok(md) => {
+                image_size_ok(path, &md)?;
+                let mut f = std::fs::OpenOptions::new()
+                    .read(true)
+                    .write(true)
+                    .open(path)
+                    .with_context(|| format!("flash image {}: cannot open", path.display()))?;
+                let mut mem = Vec::with_capacity(CAPACITY_BYTES);
+                (&mut f)
+                    .take(CAPACITY_BYTES as u64 + 1)
+                    .read_to_end(&mut mem)
+                    .with_context(|| format!("flash image {}: cannot read", path.display()))?;
+                check_image(path, &mem)?;
+                let mut m = Self::from_contents(mem);
+                m.file = Some((f, path.to_path_buf()));
+                Ok(m)
+            }
+        }
+    }
+
+    /// A new erased image at `path`, replacing a regular file there (a device, a FIFO or a
+    /// directory is refused).
+    pub fn new_file(path: &Path) -> anyhow::Result<Self> {
+        use anyhow::Context as _;
+        if let Ok(md) = std::fs::metadata(path)
+            && !md.is_file()
+        {
+            anyhow::bail!("flash image {}: not a regular file (a device, a FIFO or a directory); give a file path", path.display());
+        }
+        let mem = vec![0xFF; CAPACITY_BYTES];
         let mut f = std::fs::OpenOptions::new()
             .read(true)
             .write(true)
             .create(true)
-            .truncate(false)
+            .truncate(true)
             .open(path)
-            .with_context(|| format!("flash image {}: cannot open", path.display()))?;
-        let mut mem = Vec::new();
-        f.read_to_end(&mut mem).with_context(|| format!("flash image {}: cannot read", path.display()))?;
-        if mem.len() > CAPACITY_BYTES {
-            anyhow::bail!("flash image {}: {} bytes, larger than the chip's {CAPACITY_BYTES}", path.display(), mem.len());
-        }
-        if mem.len() < CAPACITY_BYTES {
-            mem.resize(CAPACITY_BYTES, 0xFF);
-            f.seek(SeekFrom::Start(0))?;
-            f.write_all(&mem).with_context(|| format!("flash image {}: cannot write", path.display()))?;
-        }
+            .with_context(|| format!("flash image {}: cannot create", path.display()))?;
+        f.write_all(&mem).with_context(|| format!("flash image {}: cannot write", path.display()))?;
         let mut m = Self::from_contents(mem);
-        m.file = Some(f);
+        m.file = Some((f, path.to_path_buf()));
         Ok(m)
     }
 
@@ -163,11 +230,11 @@ impl W25qModel {
     }
 
     fn persist(&mut self, start: usize, len: usize) {
-        if let (Some(f), Some(bytes)) = (self.file.as_mut(), self.mem.get(start..start + len)) {
+        if let (Some((f, path)), Some(bytes)) = (self.file.as_mut(), self.mem.get(start..start + len)) {
             // A write error leaves the image stale; the in-memory chip is still right. Reported
             // once on stderr rather than failing the bus (a real chip does not know about files).
-            if f.seek(SeekFrom::Start(start as u64)).and_then(|_| f.write_all(bytes)).is_err() {
-                eprintln!("w25q model: could not write the flash image");
+            if let Err(e) = f.seek(SeekFrom::Start(start as u64)).and_then(|_| f.write_all(bytes)) {
+                eprintln!("w25q model: could not write the flash image {}: {e}", path.display());
                 self.file = None;
             }
         }
@@ -381,5 +448,55 @@ impl<C: SpiChip> embedded_hal::spi::SpiDevice for DirectSpi<'_, C> {
         });
         self.chip.end(t);
         r.map_err(DirectSpiError)
+    }
+}
+
+#[cfg(test)]
+mod image_tests {
+    use super::*;
+
+    /// `calibrate head --flash FILE` and `qemu --flash FILE` took any file up to 2 MiB as an
+    /// image (a 9-byte note grew to 2 MiB, a recording was rewritten) and read `/dev/zero`
+    /// until out of memory: other files are refused and left byte for byte.
+    fn refusal(r: anyhow::Result<W25qModel>) -> String {
+        match r {
+            Ok(_) => panic!("taken as a flash image"),
+            Err(e) => format!("{e:#}"),
+        }
+    }
+
+    #[test]
+    fn only_a_flash_image_is_taken_as_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let note = d.join("note.txt");
+        std::fs::write(&note, b"my notes\n").unwrap();
+        let e = refusal(W25qModel::with_file(&note));
+        assert!(e.contains("note.txt") && e.contains("9 bytes") && e.contains("2097152"), "{e}");
+        assert_eq!(std::fs::read(&note).unwrap(), b"my notes\n");
+        // The right size, but not erased beyond the store.
+        let text: Vec<u8> = b"0123456789abcdef".iter().copied().cycle().take(CAPACITY_BYTES).collect();
+        let big = d.join("big.bin");
+        std::fs::write(&big, &text).unwrap();
+        let e = refusal(W25qModel::with_file(&big));
+        assert!(e.contains("big.bin") && e.contains("expected erased"), "{e}");
+        assert_eq!(std::fs::read(&big).unwrap(), text);
+        for p in [Path::new("/dev/zero"), d] {
+            let e = refusal(W25qModel::with_file(p));
+            assert!(e.contains("not a regular file"), "{e}");
+            assert!(W25qModel::new_file(p).is_err());
+        }
+        // A missing file is made erased; it is then an image, reopened with its contents.
+        let img = d.join("head.flash");
+        let mut m = W25qModel::with_file(&img).unwrap();
+        m.mem[5] = 0x12;
+        m.persist(0, 16);
+        drop(m);
+        assert_eq!(std::fs::metadata(&img).unwrap().len(), CAPACITY_BYTES as u64);
+        assert_eq!(W25qModel::with_file(&img).unwrap().contents()[5], 0x12);
+        // Asked for, a new image replaces a file.
+        let m = W25qModel::new_file(&note).unwrap();
+        assert!(m.contents().iter().all(|&b| b == 0xFF));
+        assert!(W25qModel::with_file(&note).is_ok());
     }
 }

@@ -31,10 +31,18 @@ pub struct LogInit {
     pub vel_ned_mps: [f32; 3],
 }
 
+/// Latest time a log may hold, s (about 317 years: Unix times fit; `1e300` saturated the
+/// filter's microsecond clock and froze the position).
+pub const MAX_LOG_TIME_S: f64 = 1e10;
+
+/// Largest step forward in time from one event to the next, s (a day: a longer gap is a
+/// damaged time).
+pub const MAX_GAP_S: f64 = 86_400.0;
+
 fn t_us(s: &str) -> anyhow::Result<u64> {
     let t: f64 = s.trim().parse().with_context(|| format!("bad time {s:?}"))?;
-    if !(t.is_finite() && t >= 0.0) {
-        bail!("time must be finite and >= 0, got {t}");
+    if !(t.is_finite() && (0.0..=MAX_LOG_TIME_S).contains(&t)) {
+        bail!("time must be in 0..={MAX_LOG_TIME_S:e} s, got {t}");
     }
     Ok((t * 1e6).round() as u64)
 }
@@ -50,6 +58,7 @@ fn nums(fields: &[&str], n_min: usize, n_max: usize) -> anyhow::Result<Vec<f32>>
 pub fn parse_log(text: &str) -> anyhow::Result<(Option<LogInit>, Vec<Event>)> {
     let mut init = None;
     let mut events = Vec::new();
+    let mut last_us: Option<u64> = None;
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
@@ -96,6 +105,21 @@ pub fn parse_log(text: &str) -> anyhow::Result<(Option<LogInit>, Vec<Event>)> {
             }))
         };
         if let Some(ev) = parse().with_context(|| format!("log line {}", i + 1))? {
+            let t = match &ev {
+                Event::Imu(m) => m.t_us,
+                Event::Heading { t_us, .. } | Event::Depth { t_us, .. } | Event::Dvl { t_us, .. } | Event::Fix { t_us, .. } => *t_us,
+            };
+            if let Some(prev) = last_us
+                && t.saturating_sub(prev) as f64 * 1e-6 > MAX_GAP_S
+            {
+                bail!(
+                    "log line {}: time {} s is {} s after the line before, more than {MAX_GAP_S} s: a damaged time",
+                    i + 1,
+                    t as f64 * 1e-6,
+                    (t - prev) as f64 * 1e-6
+                );
+            }
+            last_us = Some(last_us.map_or(t, |p| p.max(t)));
             events.push(ev);
         }
     }
@@ -267,6 +291,23 @@ mod tests {
         let t = dive.truth.last().unwrap();
         let err = ((last.pos_ned_m[0] as f64 - t.pos_ned_m[0]).powi(2) + (last.pos_ned_m[1] as f64 - t.pos_ned_m[1]).powi(2)).sqrt();
         assert!(err < 3.0, "position error after 20 s: {err} m");
+    }
+
+    /// One `1e300` time in a log saturated the microsecond clock and froze the position (exit
+    /// 0): times are bounded and a jump of more than a day is a damaged line.
+    #[test]
+    fn a_damaged_time_is_an_error_not_a_frozen_clock() {
+        let imu = |t: &str| format!("{t},imu,0,0,0,0,0,-9.81\n");
+        let good = imu("0") + &imu("0.01");
+        assert_eq!(parse_log(&good).unwrap().1.len(), 2);
+        for (bad, needle) in
+            [(imu("0") + &imu("1e300"), "0..=1e10"), (imu("0") + &imu("inf"), "0..=1e10"), (imu("0") + &imu("1e9"), "more than 86400")]
+        {
+            let e = format!("{:#}", parse_log(&bad).unwrap_err());
+            assert!(e.contains("line 2") && e.contains(needle), "{e}");
+        }
+        let e = format!("{:#}", parse_log(&(imu("5") + "1e7,depth,10\n")).unwrap_err());
+        assert!(e.contains("line 2") && e.contains("damaged time"), "{e}");
     }
 
     #[test]
