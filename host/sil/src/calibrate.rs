@@ -40,8 +40,6 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use nalgebra::{Matrix2, Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector2, Vector3, Vector4};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use subnav_base::sky::{self, Water};
 use subnav_base::trajectory::{RigMotion, RigStep, Trajectory};
