@@ -1,4 +1,6 @@
 use super::*;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use rand::Rng;
 use rand_distr::Distribution;
 
