@@ -99,6 +99,7 @@ pub const COMPASS_MODEL_AOP_DOLP_RAD: f32 = 0.002;
 pub fn compass_config() -> CompassConfig {
     let mut c = CompassConfig::default();
     c.solver.model_aop_dolp_rad = COMPASS_MODEL_AOP_DOLP_RAD;
+    c.solver.chi2_inflation_power = 0.5;
     c.azimuth_at_known_elevation = true;
     c.aop_departure = Some(&crate::compass::departure::OSOAA_CLEAR);
     c

@@ -50,12 +50,12 @@ pub struct SolverConfig {
     pub model_aop_dolp_rad: f32,
     /// The azimuth fit's ([`solve_azimuth`]) 1-sigma is inflated by `(chi2/dof)^(power/2)`
     /// when the residual chi-square per degree of freedom exceeds 1: 1 treats the residuals as
-    /// independent unit errors. Per fix the full inflation overstates the error (2-4x the RMSE
-    /// on the OSOAA fields; 0.5 keeps >= 99 % of fixes within 2 sigma there), but what is left
-    /// of the real field's departure is a bias that changes only as the sun and the sea do:
-    /// a filter fusing fixes at 10 Hz cannot average it down, and with 0.5 the head's 5 m/s
-    /// dives had 56-99 % of their heading within 3 sigma. The head keeps 1 (docs/PERFORMANCE.md,
-    /// "The compass in an independent light field").
+    /// independent unit errors; the real field's leftover departure is mirror-symmetric about
+    /// the solar plane and cancels in the azimuth across a ring, so the full inflation
+    /// overstates the error (2-6x the RMSE on the OSOAA fields). The head's 0.5 keeps >= 99 %
+    /// of fixes within 2 sigma on every OSOAA case and the map in the loop's recognition
+    /// precision above its bound (0.80 with 1); chosen on those fields, so not an independent
+    /// check of the sigma (docs/PERFORMANCE.md, "The compass in an independent light field").
     pub chi2_inflation_power: f32,
 }
 
