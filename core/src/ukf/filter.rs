@@ -27,6 +27,9 @@ use super::pd::{add_outer_lower, all_finite, finalize, finalize_in_place, mirror
 use super::space::{Euclidean, Space};
 use super::weights::SigmaWeights;
 
+/// Measurement statistics of an update: `(z^ without r, z^, P_zz, P_xz)`.
+type MeasStats<T, const N: usize, const M: usize> = (SVector<T, M>, SVector<T, M>, SMatrix<T, M, M>, SMatrix<T, N, M>);
+
 /// Tuning of a [`Ukf`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UkfConfig<T> {
@@ -406,22 +409,102 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     /// the gate updates `R`/`r` and their counter (adapt module doc). Any other refusal returns
     /// an error and changes nothing but a health counter. Only an accepted update writes `x`,
     /// `P`, the Q accumulators and the fading statistics.
-    pub fn update<const M: usize, Z, H>(
+    pub fn update<const M: usize, Z, H>(&mut self, z: &SVector<T, M>, noise: &mut MeasNoise<T, M>, h: H) -> Result<UpdateReport<T>, UkfError>
+    where
+        Z: Space<T, M>,
+        H: FnMut(&SVector<T, N>) -> SVector<T, M>,
+    {
+        self.update_dep::<M, Z, H>(z, noise, N, h)
+    }
+
+    /// [`Self::update`] for a model `h` that reads only the states `0..dep` (the caller's
+    /// promise). Exact, and cheaper for `dep < N`: the sigma points of the Cholesky columns
+    /// `dep..N` differ from `x` only in states `dep..` (the factor is lower triangular), so their
+    /// predicted measurement is `h(x)` without evaluating `h`, and each such pair's share of
+    /// `P_xz` is `wc (z(x) - z^) (d - d) = 0`, which is skipped. `dep = N` is the plain update.
+    /// E.g. the compass heading reads only the attitude error (3 of 15 states): 7 evaluations of
+    /// `h` instead of 31.
+    pub fn update_dep<const M: usize, Z, H>(
         &mut self,
         z: &SVector<T, M>,
         noise: &mut MeasNoise<T, M>,
+        dep: usize,
         mut h: H,
     ) -> Result<UpdateReport<T>, UkfError>
     where
         Z: Space<T, M>,
         H: FnMut(&SVector<T, N>) -> SVector<T, M>,
     {
+        self.update_with::<M, Z, _>(z, noise, |ukf, noise, l| ukf.measurement_stats::<M, Z, H>(l.unwrap_or(&ukf.l), noise, &mut h, dep))
+    }
+
+    /// Exact Kalman update for a measurement linear in the state, `z = h(x) + H (x' - x)`: the
+    /// sigma-point statistics of a linear model are `z^ = h(x)`, `P_zz = H P H^T`,
+    /// `P_xz = P H^T` exactly (the unscented transform is exact to second order, and a linear
+    /// model has no higher one), so they are computed in closed form instead of from `2N + 1`
+    /// evaluations. Everything after the statistics (gate, fading factor, gain, covariance
+    /// `P - K S K^T`, symmetrised and factored, the Sage-Husa R step, refusals) is the code of
+    /// [`Self::update`]; `h` is evaluated once, at `x`. Euclidean measurement space.
+    pub fn update_linear<const M: usize, H>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        hm: &SMatrix<T, M, N>,
+        h: H,
+    ) -> Result<UpdateReport<T>, UkfError>
+    where
+        H: Fn(&SVector<T, N>) -> SVector<T, M>,
+    {
+        let zhat0 = h(&self.x);
+        if !all_finite(&zhat0) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteResult);
+        }
+        self.update_with::<M, Euclidean, _>(z, noise, |ukf, noise, l| {
+            // P itself, or the fading factor's scaled prior `L_f L_f^T`.
+            let scaled;
+            let p = match l {
+                None => &ukf.p,
+                Some(l) => {
+                    scaled = l * l.transpose();
+                    &scaled
+                }
+            };
+            let pxz: SMatrix<T, N, M> = p * hm.transpose();
+            let mut pzz: SMatrix<T, M, M> = hm * pxz;
+            // Exactly symmetric, as the sigma-point sum is.
+            for i in 0..M {
+                for j in (i + 1)..M {
+                    let v = (pzz[(i, j)] + pzz[(j, i)]) * T::from_subset(&0.5);
+                    pzz[(i, j)] = v;
+                    pzz[(j, i)] = v;
+                }
+            }
+            let zhat = if ukf.cfg.adapt.r_mean { zhat0 + noise.r_mean } else { zhat0 };
+            Some((zhat0, zhat, pzz, pxz))
+        })
+    }
+
+    /// The update after the measurement statistics: `stats(self, noise, L)` gives
+    /// `(z^ without r, z^, P_zz, P_xz)` for the prior with factor `L` (`None`: the stored `P`
+    /// and its factor; `Some`: the fading factor's scaled factor), `None` if a model output is
+    /// not finite.
+    fn update_with<const M: usize, Z, F>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        mut stats: F,
+    ) -> Result<UpdateReport<T>, UkfError>
+    where
+        Z: Space<T, M>,
+        F: FnMut(&Self, &MeasNoise<T, M>, Option<&SMatrix<T, N, N>>) -> Option<MeasStats<T, N, M>>,
+    {
         if !all_finite(z) || !all_finite(&noise.r) || !all_finite(&noise.r_mean) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteInput);
         }
         let a = self.cfg.adapt;
-        let Some((mut zhat0, mut zhat, mut pzz, mut pxz)) = self.measurement_stats::<M, Z, H>(&self.l, noise, &mut h) else {
+        let Some((mut zhat0, mut zhat, mut pzz, mut pxz)) = stats(self, noise, None) else {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         };
@@ -475,7 +558,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                         if noise.fading_mask == 0 || (i < 64 && noise.fading_mask & (1u64 << i) != 0) { sq } else { T::one() }
                     });
                     let l_f = SMatrix::<T, N, N>::from_diagonal(&scale) * self.l;
-                    if let Some(st) = self.measurement_stats::<M, Z, H>(&l_f, noise, &mut h) {
+                    if let Some(st) = stats(self, noise, Some(&l_f)) {
                         (zhat0, zhat, pzz, pxz) = st;
                         e = Z::residual(z, &zhat);
                         p_prior = l_f * l_f.transpose();
@@ -545,7 +628,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         l: &SMatrix<T, N, N>,
         noise: &MeasNoise<T, M>,
         h: &mut H,
-    ) -> Option<(SVector<T, M>, SVector<T, M>, SMatrix<T, M, M>, SMatrix<T, N, M>)>
+        dep: usize,
+    ) -> Option<MeasStats<T, N, M>>
     where
         Z: Space<T, M>,
         H: FnMut(&SVector<T, N>) -> SVector<T, M>,
@@ -560,25 +644,42 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                 *p = X::add(&self.x, &(-d));
             }
         }
+        // Point k >= 1 comes from column (k - 1) % N; columns >= dep leave h at h(x).
+        let moves = |k: usize| k == 0 || (k - 1) % N < dep;
         let mut zs = [SVector::<T, M>::zeros(); S];
-        for (o, xi) in zs.iter_mut().zip(pts.iter()) {
+        for (k, (o, xi)) in zs.iter_mut().zip(pts.iter()).enumerate() {
+            if !moves(k) {
+                continue;
+            }
             *o = h(xi);
             if !all_finite(o) {
                 return None;
+            }
+        }
+        let z0 = zs[0];
+        for (k, o) in zs.iter_mut().enumerate() {
+            if !moves(k) {
+                *o = z0;
             }
         }
         let zhat0 = Z::mean(&zs, &self.w.wm);
         let zhat = if self.cfg.adapt.r_mean { Z::add(&zhat0, &noise.r_mean) } else { zhat0 };
         let mut pzz = SMatrix::<T, M, M>::zeros();
         let mut pxz = SMatrix::<T, N, M>::zeros();
-        for ((zi, xi), wc) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()) {
+        for (k, ((zi, xi), wc)) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()).enumerate() {
             let rz = Z::residual(zi, &zhat);
-            let rx = X::residual(xi, &self.x);
             for m in 0..M {
                 let wr = *wc * rz[m];
                 for j in 0..M {
                     pzz[(j, m)] += wr * rz[j];
                 }
+            }
+            if !moves(k) {
+                continue;
+            }
+            let rx = X::residual(xi, &self.x);
+            for m in 0..M {
+                let wr = *wc * rz[m];
                 for i in 0..N {
                     pxz[(i, m)] += wr * rx[i];
                 }
