@@ -556,7 +556,11 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let decay = libm::expf(-inc.dt_s / self.cfg.markov_tau_s);
         let q_scale = inc.dt_s / self.cfg.cov_dt_s();
         // A refused predict keeps the increments: the next predict covers their interval too.
-        self.ukf.predict(q_scale, |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        // Without an attitude error in the mean (the usual case: every step injects it), the
+        // error transition is linear in the other states (`strapdown::propagate_error`):
+        // their sigma points pair up (`Ukf::predict_dep`).
+        let lin_from = if seg(self.ukf.x(), ATT) == Vector3::zeros() { ATT + 3 } else { N };
+        self.ukf.predict_dep(q_scale, lin_from, |dx| strapdown::propagate_error(dx, &inc, decay))?;
         self.inc = Increments::zero();
         self.inject()
     }

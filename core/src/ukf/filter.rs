@@ -350,7 +350,23 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     /// Time update: `x_i <- f(sigma_i)`, `P <- sum Wc r r^T + q_scale * Q` (with the Sage-Husa
     /// `Q`/`q` step first when it is on). Refused (nothing changed, see the module doc) if
     /// `q_scale` or a model output is not finite, or the new `P` cannot be made PD.
-    pub fn predict<F>(&mut self, q_scale: T, mut f: F) -> Result<(), UkfError>
+    pub fn predict<F>(&mut self, q_scale: T, f: F) -> Result<(), UkfError>
+    where
+        F: FnMut(&SVector<T, N>) -> SVector<T, N>,
+    {
+        self.predict_dep(q_scale, N, f)
+    }
+
+    /// [`Self::predict`] for a model `f` that is affine along the states `lin_from..N` at `x`
+    /// (the caller's promise: `f(x + d) - f(x) = f(x) - f(x - d)` for every `d` that is zero
+    /// in the states `0..lin_from`). Exact, and cheaper for `lin_from < N`: the sigma points of
+    /// the Cholesky columns `lin_from..N` are such `x +- d` pairs (the factor is lower
+    /// triangular), so `f(x - d)` is `f(x) - (f(x + d) - f(x))` without evaluating `f`, and the
+    /// pair's share of the spread, `wc (r+ r+^T + r- r-^T)` with `r+- = c +- a`, is
+    /// `2 wc (a a^T + c c^T)`, where `c = f(x) - mean` is common to every such pair: one outer
+    /// product per pair instead of two. `lin_from = N` is the plain predict. E.g. the INS
+    /// error transition without an attitude error is linear in the other 12 (or 15) states.
+    pub fn predict_dep<F>(&mut self, q_scale: T, lin_from: usize, mut f: F) -> Result<(), UkfError>
     where
         F: FnMut(&SVector<T, N>) -> SVector<T, N>,
     {
@@ -358,22 +374,47 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteInput);
         }
+        let lin_from = lin_from.min(N);
+        // Point k >= 1 comes from column (k - 1) % N, `+` for k <= N; columns >= lin_from pair.
+        let paired = |k: usize| k > 0 && (k - 1) % N >= lin_from;
         // Propagated in place: one array of 2N+1 points on the stack, not two.
         let mut prop = self.sigma_points();
-        for o in prop.iter_mut() {
+        for (k, o) in prop.iter_mut().enumerate() {
+            if paired(k) && k > N {
+                continue;
+            }
             *o = f(o);
             if !all_finite(o) {
                 self.health.nonfinite_rejects += 1;
                 return Err(UkfError::NonFiniteResult);
             }
         }
+        let f0 = prop.first().copied().unwrap_or(self.x);
+        for i in lin_from..N {
+            let a = prop.get(1 + i).map(|p| X::residual(p, &f0)).unwrap_or_else(SVector::zeros);
+            if let Some(p) = prop.get_mut(1 + N + i) {
+                *p = X::add(&f0, &(-a));
+            }
+        }
         let mut q = self.q;
         let (q_mean, q_k, fallbacks) = self.adapted_q(&mut q);
         let xm = X::mean(&prop, &self.w.wm);
         let mut spread = SMatrix::<T, N, N>::zeros();
-        for (c, wc) in prop.iter().zip(self.w.wc.iter()) {
-            let r = X::residual(c, &xm);
-            add_outer_lower(&mut spread, *wc, &r);
+        let two = T::one() + T::one();
+        for (k, (c, wc)) in prop.iter().zip(self.w.wc.iter()).enumerate() {
+            if !paired(k) {
+                let r = X::residual(c, &xm);
+                add_outer_lower(&mut spread, *wc, &r);
+            } else if k <= N {
+                let a = X::residual(c, &f0);
+                add_outer_lower(&mut spread, two * *wc, &a);
+            }
+        }
+        if lin_from < N {
+            // The common part `c` of the paired points: 2 (N - lin_from) of them, weight wc each.
+            let wc = self.w.wc.last().copied().unwrap_or_else(T::zero);
+            let c = X::residual(&f0, &xm);
+            add_outer_lower(&mut spread, two * T::from_subset(&((N - lin_from) as f64)) * wc, &c);
         }
         mirror_lower(&mut spread);
         let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &q_mean) } else { xm };
@@ -732,3 +773,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X> Ukf<T, N, S, X> {
 #[cfg(test)]
 #[path = "refusal_tests.rs"]
 mod refusal_tests;
+
+#[cfg(test)]
+#[path = "shortcut_tests.rs"]
+mod shortcut_tests;
