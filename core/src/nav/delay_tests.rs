@@ -358,7 +358,8 @@ fn the_history_carries_the_corrections_so_the_same_fix_twice_barely_moves_the_st
     nav.update_position(1000 * DT_US, z, FIX_COV).unwrap();
     let first = (pos(&nav) - p0).norm();
     // The past the filter compares with is the corrected one: at the fix time, the corrected
-    // history now sits near the fix.
+    // history now sits near the fix (its correction applied: it is deferred to the next read).
+    nav.flush_history();
     let ep = nav.history().epoch(1000 * DT_US, nav.t_us(), nav.nominal(), 9.81, 300.0).unwrap();
     let resid = (ep.nom.pos_ned_m - Vector3::from(z)).norm();
     let p1 = pos(&nav);

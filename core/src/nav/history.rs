@@ -220,6 +220,11 @@ impl History {
         self.next_grid_us = (t_us / HISTORY_SPACING_US).saturating_add(1).saturating_mul(HISTORY_SPACING_US);
     }
 
+    /// Whether [`Self::record`] at `t_us` would add an entry.
+    pub fn due(&self, t_us: u64) -> bool {
+        t_us >= self.next_grid_us
+    }
+
     /// The filter coasted up to `t_us`.
     pub fn mark_coast(&mut self, t_us: u64) {
         self.coast_end_us = Some(t_us);

@@ -64,8 +64,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     }
 
     /// The nominal position at `t_us`, now or in the history (NED, m); `None` outside them.
-    /// Changes nothing (a time outside the history is not counted as a refused measurement).
-    pub fn position_at(&self, t_us: u64) -> Option<Vector3<f32>> {
+    /// Changes no estimate (a time outside the history is not counted as a refused
+    /// measurement); applies a pending history correction (`flush_history`).
+    pub fn position_at(&mut self, t_us: u64) -> Option<Vector3<f32>> {
+        self.flush_history();
         if t_us > self.t_us.saturating_add(self.cfg.max_future_us) {
             return None;
         }
