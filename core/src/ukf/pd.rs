@@ -90,48 +90,41 @@ pub fn jacobi_eigen_in_place<T: RealField + Copy, const N: usize>(
 }
 
 /// Lower Cholesky factor of the symmetric matrix `p` (only its lower triangle is read) into `l`
-/// (upper triangle zeroed): `p = l l^T`. Row by row (Cholesky-Banachiewicz) on a row-major
-/// copy, so every entry is one dot product of two contiguous row prefixes: at 15 x 15 the
-/// right-looking column version spent more on loop set-up than on the 560 multiply-adds
-/// (11,100 instructions on the M4F; this one, `cargo xtask bench-target` `ukf.cholesky_15`, see
-/// docs/PERFORMANCE.md). `false` if a pivot is not positive or not finite; `l` is then
-/// unspecified.
+/// (upper triangle zeroed): `p = l l^T`. Right-looking, column by column on the column-major
+/// storage (contiguous slices, so the inner loop has no index checks). `false` if a pivot is not
+/// positive or not finite; `l` is then unspecified.
 pub fn cholesky_into<T: RealField + Copy, const N: usize>(p: &SMatrix<T, N, N>, l: &mut SMatrix<T, N, N>) -> bool {
-    fn dot<T: RealField + Copy>(a: &[T], b: &[T]) -> T {
-        let mut s = T::zero();
-        for (x, y) in a.iter().zip(b.iter()) {
-            s += *x * *y;
+    for j in 0..N {
+        for i in 0..N {
+            l[(i, j)] = if i >= j { p[(i, j)] } else { T::zero() };
         }
-        s
     }
-    // Row i of L is stored in column i of `l` (contiguous: `l` holds L^T), transposed at the end
-    // (in place: no second N x N array on the M4F's stack).
-    l.fill(T::zero());
     let data = l.as_mut_slice();
-    let mut inv_diag = [T::zero(); N];
-    for i in 0..N {
-        let (done, rest) = data.split_at_mut(i * N);
-        let Some(ri) = rest.get_mut(..N) else { return false };
-        for (j, rj) in done.chunks_exact(N).enumerate() {
-            let s = dot(ri.get(..j).unwrap_or(&[]), rj.get(..j).unwrap_or(&[]));
-            if let Some(v) = ri.get_mut(j) {
-                *v = (p[(i, j)] - s) * inv_diag.get(j).copied().unwrap_or_else(T::zero);
-            }
-        }
-        let prefix = ri.get(..i).unwrap_or(&[]);
-        let d = p[(i, i)] - dot(prefix, prefix);
-        if !(d > T::zero()) || !d.is_finite() {
+    for j in 0..N {
+        let (head, tail) = data.split_at_mut((j + 1) * N);
+        let Some(col_j) = head.get_mut(j * N..) else { return false };
+        let Some((pivot, below)) = col_j.get_mut(j..).and_then(|c| c.split_first_mut()) else { return false };
+        if !(*pivot > T::zero()) || !pivot.is_finite() {
             return false;
         }
-        let root = d.sqrt();
-        if let Some(v) = ri.get_mut(i) {
-            *v = root;
+        *pivot = pivot.sqrt();
+        let inv = T::one() / *pivot;
+        for v in below.iter_mut() {
+            *v *= inv;
         }
-        if let Some(v) = inv_diag.get_mut(i) {
-            *v = T::one() / root;
+        // Trailing columns k > j, rows k..: col_k -= l[k, j] * col_j.
+        for (kk, col_k) in tail.chunks_exact_mut(N).enumerate() {
+            let Some((&l_kj, rest)) = below.get(kk..).and_then(|c| c.split_first()) else { break };
+            if let Some(dst) = col_k.get_mut(j + 1 + kk..) {
+                if let Some((d0, drest)) = dst.split_first_mut() {
+                    *d0 -= l_kj * l_kj;
+                    for (a, b) in drest.iter_mut().zip(rest.iter()) {
+                        *a -= l_kj * *b;
+                    }
+                }
+            }
         }
     }
-    l.transpose_mut();
     true
 }
 
