@@ -336,6 +336,8 @@ pub struct NavFilter<const N: usize, const S: usize> {
     pub(crate) pend_now: NominalState,
     pub(crate) pend_t_us: u64,
     pub(crate) pend_on: bool,
+    /// Filter time at which `inc` started (the last covariance step).
+    pub(crate) inc_start_us: u64,
 }
 
 pub type NavFilter15 = NavFilter<15, 31>;
@@ -381,6 +383,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             pend_now: nom,
             pend_t_us: init.t_us,
             pend_on: false,
+            inc_start_us: init.t_us,
         })
     }
 
@@ -417,6 +420,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.last_vel_accepted_us = None;
         self.pend_on = false;
         self.pend_dx = SVector::zeros();
+        self.inc_start_us = init.t_us;
         Ok(())
     }
 
@@ -487,6 +491,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             let near = imu.t_us >= self.t_us && (imu.t_us - self.t_us) as f32 * 1e-6 <= self.cfg.max_imu_dt_s;
             self.last_imu_t_us = Some(imu.t_us);
             self.t_us = imu.t_us;
+            if self.inc.samples == 0 {
+                self.inc_start_us = imu.t_us;
+            }
             if !near {
                 self.restart_history();
             }
@@ -573,7 +580,17 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // their sigma points pair up (`Ukf::predict_dep`).
         let lin_from = if seg(self.ukf.x(), ATT) == Vector3::zeros() { ATT + 3 } else { N };
         self.ukf.predict_dep(q_scale, lin_from, |dx| strapdown::propagate_error(dx, &inc, decay))?;
+        // A history correction pending since the start of these increments is carried to now
+        // through the same error transition (to first order, retrodicting the carried error
+        // from now is retrodicting the original one from its time), so the injections of
+        // successive instants share one pass over the history (see `inject`).
+        if self.pend_on && self.pend_t_us == self.inc_start_us {
+            self.pend_dx = strapdown::propagate_error(&self.pend_dx, &inc, decay);
+            self.pend_t_us = self.t_us;
+            self.pend_now = self.nom;
+        }
         self.inc = Increments::zero();
+        self.inc_start_us = self.t_us;
         self.inject()
     }
 
