@@ -741,6 +741,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if dx.iter().all(|v| *v == 0.0) {
             return true;
         }
+        let map = self.correction_map(dx);
+        self.hist.correct(map)
+    }
+
+    /// The map of a history entry under the error mean `dx` injected at `pend_t_us` against the
+    /// nominal `pend_now` (see `correct_history`), by value (it borrows nothing).
+    fn correction_map(&self, dx: &SVector<f32, N>) -> impl Fn(&Snapshot) -> Snapshot + use<N, S> {
         let (now, t_now) = (self.pend_now, self.pend_t_us);
         let g = Vector3::new(0.0, 0.0, self.cfg.gravity_mps2);
         let inv_tau = 1.0 / self.cfg.markov_tau_s;
@@ -752,7 +759,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // exponential per call instead of one per entry.
         let q0 = quat_from_rotation_vector(&phi);
         let r0 = q0.to_rotation_matrix();
-        self.hist.correct(|e| {
+        move |e: &Snapshot| {
             let t_s = t_now.saturating_sub(e.t_us) as f32 * 1e-6;
             let (dv_e, dp_e, b) = if coast_end.is_some_and(|c| e.t_us < c) {
                 // Across a coast: constant velocity, no specific-force or bias coupling.
@@ -780,7 +787,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             let mut att = q0 * (qb * e.att_nb);
             att.renormalize_fast();
             Snapshot { t_us: e.t_us, att_nb: att, vel_ned_mps: e.vel_ned_mps + dv_e, pos_ned_m: e.pos_ned_m + dp_e }
-        })
+        }
     }
 
     /// Before an aiding update: finite check, flush the partial covariance interval.
@@ -814,13 +821,24 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// The nominal at `t_m_us` and the interval back to it (after [`Self::check_time`] said
     /// delayed and the partial covariance interval was flushed).
     pub(crate) fn past_epoch(&mut self, t_m_us: u64) -> Result<PastEpoch, NavError> {
-        self.flush_history();
-        match self.hist.epoch(t_m_us, self.t_us, &self.nom, self.cfg.gravity_mps2, self.cfg.markov_tau_s) {
+        match self.epoch_at(t_m_us) {
             Some(e) => Ok(e),
             None => {
                 self.delay_rejects = self.delay_rejects.saturating_add(1);
                 Err(NavError::TooOld)
             }
+        }
+    }
+
+    /// The history's epoch at `t_m_us`, with a pending correction applied to the two entries it
+    /// reads (the history itself stays pending: see `inject`).
+    pub(crate) fn epoch_at(&self, t_m_us: u64) -> Option<PastEpoch> {
+        let (g, tau) = (self.cfg.gravity_mps2, self.cfg.markov_tau_s);
+        if self.pend_on && self.pend_dx.iter().any(|v| *v != 0.0) {
+            let map = self.correction_map(&self.pend_dx);
+            self.hist.epoch_with(t_m_us, self.t_us, &self.nom, g, tau, map)
+        } else {
+            self.hist.epoch(t_m_us, self.t_us, &self.nom, g, tau)
         }
     }
 

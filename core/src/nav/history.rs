@@ -233,6 +233,21 @@ impl History {
     /// Nominal at `t_m` (between the oldest entry and `now`, the current nominal at `t_now`),
     /// and the interval `[t_m, t_now]`; `None` if `t_m` is older than the history or after `t_now`.
     pub fn epoch(&self, t_m_us: u64, t_now_us: u64, now: &NominalState, gravity_mps2: f32, markov_tau_s: f32) -> Option<PastEpoch> {
+        self.epoch_with(t_m_us, t_now_us, now, gravity_mps2, markov_tau_s, |e| *e)
+    }
+
+    /// [`Self::epoch`] with the stored entries read through `fix` (a correction not yet applied
+    /// to the history: only the two entries around `t_m` need it; the current nominal `now`
+    /// has it already).
+    pub fn epoch_with(
+        &self,
+        t_m_us: u64,
+        t_now_us: u64,
+        now: &NominalState,
+        gravity_mps2: f32,
+        markov_tau_s: f32,
+        fix: impl Fn(&Snapshot) -> Snapshot,
+    ) -> Option<PastEpoch> {
         if t_m_us > t_now_us {
             return None;
         }
@@ -240,13 +255,18 @@ impl History {
         // Bracket: the last entry at or before t_m, and its successor (or the current nominal).
         let mut before: Option<Snapshot> = None;
         let mut after = cur;
+        let mut after_stored = false;
         for i in (0..self.len).rev() {
             let e = *self.get(i)?;
             if e.t_us <= t_m_us {
-                before = Some(e);
+                before = Some(fix(&e));
                 break;
             }
             after = e;
+            after_stored = true;
+        }
+        if after_stored {
+            after = fix(&after);
         }
         let past = before?.lerp(&after, t_m_us);
         if !past.is_finite() {

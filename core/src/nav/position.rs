@@ -64,17 +64,15 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     }
 
     /// The nominal position at `t_us`, now or in the history (NED, m); `None` outside them.
-    /// Changes no estimate (a time outside the history is not counted as a refused
-    /// measurement); applies a pending history correction (`flush_history`).
-    pub fn position_at(&mut self, t_us: u64) -> Option<Vector3<f32>> {
-        self.flush_history();
+    /// Changes nothing (a time outside the history is not counted as a refused measurement).
+    pub fn position_at(&self, t_us: u64) -> Option<Vector3<f32>> {
         if t_us > self.t_us.saturating_add(self.cfg.max_future_us) {
             return None;
         }
         if t_us.saturating_add(CURRENT_WITHIN_US) >= self.t_us {
             return Some(self.nom.pos_ned_m);
         }
-        self.hist.epoch(t_us, self.t_us, &self.nom, self.cfg.gravity_mps2, self.cfg.markov_tau_s).map(|e| e.nom.pos_ned_m)
+        self.epoch_at(t_us).map(|e| e.nom.pos_ned_m)
     }
 
     /// Position reset (re-acquisition): move the nominal position to `pos_ned_m` and make its
