@@ -8,7 +8,7 @@ use crate::ukf::{AdaptConfig, MeasNoise, NisQScale, QScaleConfig, Ukf, UkfConfig
 use subnav_wire::messages::{ImuSample, NavMode, NavSolution};
 
 use super::history::{CURRENT_WITHIN_US, History, PastEpoch, Snapshot};
-use super::rotation::quat_from_rotation_vector;
+use super::rotation::{a3, add, cross, dot, mul, quat_from_rotation_vector, rows_of, scale, sub, us_to_s};
 use super::state::{ATT, BA, BG, MARKOV, NominalState, POS, VEL, seg, set_seg, yaw_of};
 use super::strapdown::{self, Increments};
 
@@ -503,7 +503,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             self.time_rejects = self.time_rejects.saturating_add(1);
             return Err(NavError::BadTime);
         }
-        let dt = (imu.t_us - last) as f32 * 1e-6;
+        let dt = us_to_s(imu.t_us - last);
         self.last_imu_t_us = Some(imu.t_us);
         self.t_us = imu.t_us;
         if dt > self.cfg.max_imu_dt_s {
@@ -768,7 +768,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         let (na_dba, na_dbg, na_eps) = (a3(&na_dba), a3(&na_dbg), a3(&na_eps));
         let (nv, np, gz) = (a3(&now.vel_ned_mps), a3(&now.pos_ned_m), g.z);
         move |e: &Snapshot| {
-            let t_s = t_now.saturating_sub(e.t_us) as f32 * 1e-6;
+            let t_s = us_to_s(t_now.saturating_sub(e.t_us));
             let qe = e.att_nb.quaternion();
             let (ew, ev_q) = (qe.w, [qe.i, qe.j, qe.k]);
             let (ev, ep) = (a3(&e.vel_ned_mps), a3(&e.pos_ned_m));
@@ -1050,33 +1050,3 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     }
 }
 
-// Plain 3-vector arithmetic for the history correction (see `correction_map`).
-fn a3(v: &Vector3<f32>) -> [f32; 3] {
-    [v.x, v.y, v.z]
-}
-fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-fn mul(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
-    [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
-}
-/// Rows of the rotation matrix of the unit quaternion `(w, x, y, z)`.
-fn rows_of(w: f32, x: f32, y: f32, z: f32) -> [[f32; 3]; 3] {
-    [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ]
-}
