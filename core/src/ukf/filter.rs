@@ -396,8 +396,15 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                 *p = X::add(&f0, &(-a));
             }
         }
-        let mut q = self.q;
-        let (q_mean, q_k, fallbacks) = self.adapted_q(&mut q);
+        // Q adapted (Sage-Husa) or the stored one; only the adaptation needs the spread kept.
+        let adapt_q = self.cfg.adapt.q_cov || self.cfg.adapt.q_mean;
+        let mut q_new = SMatrix::<T, N, N>::zeros();
+        let (q_mean, q_k, fallbacks) = if adapt_q {
+            q_new = self.q;
+            self.adapted_q(&mut q_new)
+        } else {
+            (self.q_mean, self.q_k, 0)
+        };
         let xm = X::mean(&prop, &self.w.wm);
         let mut spread = SMatrix::<T, N, N>::zeros();
         let two = T::one() + T::one();
@@ -416,13 +423,23 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             let c = X::residual(&f0, &xm);
             add_outer_lower(&mut spread, two * T::from_subset(&((N - lin_from) as f64)) * wc, &c);
         }
-        mirror_lower(&mut spread);
         let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &q_mean) } else { xm };
         if !all_finite(&x_new) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         }
-        let mut p = spread + q * q_scale;
+        // P = spread + q_scale Q on the lower triangle, mirrored (Q is symmetric).
+        let q = if adapt_q { &q_new } else { &self.q };
+        let mut p = spread;
+        for j in 0..N {
+            for i in j..N {
+                p[(i, j)] += q[(i, j)] * q_scale;
+            }
+        }
+        mirror_lower(&mut p);
+        if adapt_q {
+            mirror_lower(&mut spread);
+        }
         let mut l = SMatrix::<T, N, N>::zeros();
         let repaired = self.factor(&mut p, &mut l)?;
         // Nothing can fail from here on.
@@ -430,14 +447,16 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.health.adapt_fallbacks = self.health.adapt_fallbacks.wrapping_add(fallbacks);
         self.p = p;
         self.l = l;
-        self.q = q;
-        self.q_mean = q_mean;
-        self.q_k = q_k;
         self.x = x_new;
-        self.spread = spread;
-        self.acc_ke = SVector::zeros();
-        self.acc_keek = SMatrix::zeros();
-        self.acc_n = 0;
+        if adapt_q {
+            self.q = q_new;
+            self.q_mean = q_mean;
+            self.q_k = q_k;
+            self.spread = spread;
+            self.acc_ke = SVector::zeros();
+            self.acc_keek = SMatrix::zeros();
+            self.acc_n = 0;
+        }
         self.health.predicts = self.health.predicts.wrapping_add(1);
         Ok(())
     }
