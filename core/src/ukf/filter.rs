@@ -495,7 +495,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         Z: Space<T, M>,
         H: FnMut(&SVector<T, N>) -> SVector<T, M>,
     {
-        self.update_with::<M, Z, _>(z, noise, |ukf, noise, l| ukf.measurement_stats::<M, Z, H>(l.unwrap_or(&ukf.l), noise, &mut h, dep))
+        self.update_with::<M, Z>(z, noise, &mut |ukf, noise, l| ukf.measurement_stats::<M, Z, H>(l.unwrap_or(&ukf.l), noise, &mut h, dep))
     }
 
     /// Exact Kalman update for a measurement linear in the state, `z = h(x) + H (x' - x)`: the
@@ -520,7 +520,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         }
-        self.update_with::<M, Euclidean, _>(z, noise, |ukf, noise, l| {
+        self.update_with::<M, Euclidean>(z, noise, &mut |ukf, noise, l| {
             // P itself, or the fading factor's scaled prior `L_f L_f^T`.
             let scaled;
             let p = match l {
@@ -549,15 +549,17 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     /// `(z^ without r, z^, P_zz, P_xz)` for the prior with factor `L` (`None`: the stored `P`
     /// and its factor; `Some`: the fading factor's scaled factor), `None` if a model output is
     /// not finite.
-    fn update_with<const M: usize, Z, F>(
+    /// `stats` is a trait object so the update's code exists once per measurement size and space
+    /// (flash on the M4F), not once per model.
+    #[allow(clippy::type_complexity)]
+    fn update_with<const M: usize, Z>(
         &mut self,
         z: &SVector<T, M>,
         noise: &mut MeasNoise<T, M>,
-        mut stats: F,
+        stats: &mut dyn FnMut(&Self, &MeasNoise<T, M>, Option<&SMatrix<T, N, N>>) -> Option<MeasStats<T, N, M>>,
     ) -> Result<UpdateReport<T>, UkfError>
     where
         Z: Space<T, M>,
-        F: FnMut(&Self, &MeasNoise<T, M>, Option<&SMatrix<T, N, N>>) -> Option<MeasStats<T, N, M>>,
     {
         if !all_finite(z) || !all_finite(&noise.r) || !all_finite(&noise.r_mean) {
             self.health.nonfinite_rejects += 1;
