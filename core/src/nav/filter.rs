@@ -784,8 +784,11 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
                 let growth = 1.0 + x * (1.0 + x * 0.5);
                 let re = rows_of(ew, ev_q[0], ev_q[1], ev_q[2]);
                 let ea_dba = mul(&re, dba);
-                let (ea_drift, na_drift) =
-                    if markov { (mul(&re, add(dbg, scale(eps, growth))), add(na_dbg, scale(na_eps, growth))) } else { (mul(&re, dbg), na_dbg) };
+                let (ea_drift, na_drift) = if markov {
+                    (mul(&re, add(dbg, scale(eps, growth))), add(na_dbg, scale(na_eps, growth)))
+                } else {
+                    (mul(&re, dbg), na_dbg)
+                };
                 // c = T (R_e + R_now) / 2, cc = T^2 (R_e / 3 + R_now / 6), applied to vectors.
                 let (h, t2) = (0.5 * t_s, t_s * t_s);
                 let b = scale(add(ea_drift, na_drift), h);
@@ -1049,4 +1052,3 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.nis
     }
 }
-

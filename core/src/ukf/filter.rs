@@ -469,7 +469,12 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     /// the gate updates `R`/`r` and their counter (adapt module doc). Any other refusal returns
     /// an error and changes nothing but a health counter. Only an accepted update writes `x`,
     /// `P`, the Q accumulators and the fading statistics.
-    pub fn update<const M: usize, Z, H>(&mut self, z: &SVector<T, M>, noise: &mut MeasNoise<T, M>, h: H) -> Result<UpdateReport<T>, UkfError>
+    pub fn update<const M: usize, Z, H>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        h: H,
+    ) -> Result<UpdateReport<T>, UkfError>
     where
         Z: Space<T, M>,
         H: FnMut(&SVector<T, N>) -> SVector<T, M>,

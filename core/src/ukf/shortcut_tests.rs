@@ -25,7 +25,8 @@ fn filter(adapt: bool) -> F {
     c.p_floor = 1e-12;
     c.p_rel_floor = 1e-12;
     if adapt {
-        c.adapt = AdaptConfig { b: 0.95, k0: 5, r_cov: true, q_cov: true, fading: true, fading_s: 1.0, lambda_max: 3.0, ..AdaptConfig::plain() };
+        c.adapt =
+            AdaptConfig { b: 0.95, k0: 5, r_cov: true, q_cov: true, fading: true, fading_s: 1.0, lambda_max: 3.0, ..AdaptConfig::plain() };
     }
     let mut seed = 99u64;
     let a = SMatrix::<f64, N, N>::from_fn(|_, _| lcg(&mut seed));
@@ -58,7 +59,15 @@ fn twin_run(adapt: bool) {
     let mut lin_plain = MeasNoise::new(SMatrix::<f64, 3, 3>::identity() * 0.04).with_gate(chi2_999(3), 16.0, 3);
     let mut lin_short = lin_plain;
     // Linear: positions 2..5 (after the predict the mean is zero there only by chance).
-    let hm = SMatrix::<f64, 3, N>::from_fn(|i, j| if j == i + 2 { 1.0 } else if j == 5 && i == 0 { 0.5 } else { 0.0 });
+    let hm = SMatrix::<f64, 3, N>::from_fn(|i, j| {
+        if j == i + 2 {
+            1.0
+        } else if j == 5 && i == 0 {
+            0.5
+        } else {
+            0.0
+        }
+    });
     let mut seed = 5u64;
     let (mut accepted, mut rejected, mut faded) = (0, 0, 0);
     for k in 0..60 {
