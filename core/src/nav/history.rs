@@ -49,7 +49,12 @@
 //! the increments above are *differences* of nominal states, so a change of the current nominal
 //! that did not reach the past would be counted as specific force (measured: leaving the
 //! predicts' means out of the history made the 3 s late fix of `delay_tests` end 7.5 mm instead
-//! of 0.7 mm from the on-time one).
+//! of 0.7 mm from the on-time one). The corrections are deferred and summed (issue 38:
+//! `NavFilter::inject`): those of one instant add up, a pending one is carried to the next
+//! predict's time through the same error transition, and it is applied to the entries before a
+//! new one is recorded; a delayed fusion reads its two bracketing entries through it
+//! ([`History::epoch_with`]). One pass over the entries per grid point instead of one per
+//! injection.
 //!
 //! **Why this and not the alternatives** (RAM on the MCU: firmware <= 32 KiB including stack,
 //! 29.4 KiB used before this module):
