@@ -331,10 +331,10 @@ pub struct NavFilter<const N: usize, const S: usize> {
     /// evidence).
     pub(crate) last_vel_accepted_us: Option<u64>,
     /// The history correction not yet applied ([`Self::inject`]): the summed error means
-    /// injected at `pend_t_us`, the nominal before the first of them; `pend_on` if any.
+    /// injected at `pend_now.t_us`, the nominal before the first of them; `pend_on` if any.
     pub(crate) pend_dx: SVector<f32, N>,
-    pub(crate) pend_now: NominalState,
-    pub(crate) pend_t_us: u64,
+    /// (Attitude, velocity and position of the nominal, and the time: 48 B.)
+    pub(crate) pend_now: Snapshot,
     pub(crate) pend_on: bool,
     /// Filter time at which `inc` started (the last covariance step).
     pub(crate) inc_start_us: u64,
@@ -380,8 +380,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             q_scale_applied: 1.0,
             last_vel_accepted_us: None,
             pend_dx: SVector::zeros(),
-            pend_now: nom,
-            pend_t_us: init.t_us,
+            // Unused while `pend_on` is false.
+            pend_now: Snapshot::of(0, &NominalState::zero()),
             pend_on: false,
             inc_start_us: init.t_us,
         })
@@ -584,10 +584,9 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // through the same error transition (to first order, retrodicting the carried error
         // from now is retrodicting the original one from its time), so the injections of
         // successive instants share one pass over the history (see `inject`).
-        if self.pend_on && self.pend_t_us == self.inc_start_us {
+        if self.pend_on && self.pend_now.t_us == self.inc_start_us {
             self.pend_dx = strapdown::propagate_error(&self.pend_dx, &inc, decay);
-            self.pend_t_us = self.t_us;
-            self.pend_now = self.nom;
+            self.pend_now = Snapshot::of(self.t_us, &self.nom);
         }
         self.inc = Increments::zero();
         self.inc_start_us = self.t_us;
@@ -688,11 +687,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if dx.iter().all(|v| *v == 0.0) {
             return Ok(());
         }
-        if !(self.pend_on && self.pend_t_us == self.t_us) {
+        if !(self.pend_on && self.pend_now.t_us == self.t_us) {
             self.flush_history();
             self.pend_on = true;
-            self.pend_t_us = self.t_us;
-            self.pend_now = self.nom;
+            self.pend_now = Snapshot::of(self.t_us, &self.nom);
             self.pend_dx = SVector::zeros();
         }
         self.pend_dx += dx;
@@ -745,10 +743,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         self.hist.correct(map)
     }
 
-    /// The map of a history entry under the error mean `dx` injected at `pend_t_us` against the
+    /// The map of a history entry under the error mean `dx` injected at `pend_now.t_us` against the
     /// nominal `pend_now` (see `correct_history`), by value (it borrows nothing).
     fn correction_map(&self, dx: &SVector<f32, N>) -> impl Fn(&Snapshot) -> Snapshot + use<N, S> {
-        let (now, t_now) = (self.pend_now, self.pend_t_us);
+        let (now, t_now) = (self.pend_now, self.pend_now.t_us);
         let g = Vector3::new(0.0, 0.0, self.cfg.gravity_mps2);
         let inv_tau = 1.0 / self.cfg.markov_tau_s;
         let coast_end = self.hist.coast_end_us();

@@ -57,6 +57,18 @@ pub struct NominalState {
 }
 
 impl NominalState {
+    /// Level, at rest at the origin, no biases.
+    pub const fn zero() -> Self {
+        Self {
+            att_nb: UnitQuaternion::new_unchecked(nalgebra::Quaternion::from_vector(nalgebra::Vector4::new(0.0, 0.0, 0.0, 1.0))),
+            vel_ned_mps: Vector3::new(0.0, 0.0, 0.0),
+            pos_ned_m: Vector3::new(0.0, 0.0, 0.0),
+            gyro_bias_radps: Vector3::new(0.0, 0.0, 0.0),
+            accel_bias_mps2: Vector3::new(0.0, 0.0, 0.0),
+            gyro_markov_radps: Vector3::new(0.0, 0.0, 0.0),
+        }
+    }
+
     /// Fold an error-state mean into the nominal state.
     pub fn inject<const N: usize>(&mut self, dx: &SVector<f32, N>) {
         let phi = seg(dx, ATT);
