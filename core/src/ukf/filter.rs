@@ -154,9 +154,13 @@ pub struct Ukf<T: RealField + Copy, const N: usize, const S: usize, X = Euclidea
     cfg: UkfConfig<T>,
     w: SigmaWeights<T, S>,
     q_k: u32,
-    spread: SMatrix<T, N, N>,
+    /// Two symmetric matrices of the Sage-Husa Q step in one (RAM on the M4F: 840 B per filter,
+    /// which the boot path holds twice): the previous predict's spread `sum Wc r r^T` on and
+    /// below the diagonal, the strictly lower part of `sum dx dx^T` over the updates since
+    /// then above it (transposed); its diagonal in `acc_keek_diag`.
+    spread_keek: SMatrix<T, N, N>,
     acc_ke: SVector<T, N>,
-    acc_keek: SMatrix<T, N, N>,
+    acc_keek_diag: SVector<T, N>,
     acc_n: u32,
     health: UkfHealth<T>,
     _space: PhantomData<X>,
@@ -183,9 +187,9 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             q_k: cfg.adapt.k0,
             cfg,
             w,
-            spread: SMatrix::zeros(),
+            spread_keek: SMatrix::zeros(),
             acc_ke: SVector::zeros(),
-            acc_keek: SMatrix::zeros(),
+            acc_keek_diag: SVector::zeros(),
             acc_n: 0,
             health,
             _space: PhantomData,
@@ -212,9 +216,9 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.q_k = cfg.adapt.k0;
         self.cfg = cfg;
         self.w = w;
-        self.spread = SMatrix::zeros();
+        self.spread_keek = SMatrix::zeros();
         self.acc_ke = SVector::zeros();
-        self.acc_keek = SMatrix::zeros();
+        self.acc_keek_diag = SVector::zeros();
         self.acc_n = 0;
         Ok(())
     }
@@ -335,8 +339,19 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         let q_mean = if a.q_mean { self.q_mean * (T::one() - d) + self.acc_ke * d } else { self.q_mean };
         let mut fallbacks = 0;
         if a.q_cov {
-            let delta = self.p - self.spread;
-            match sage_husa_cov(q, d, &self.acc_keek, &delta, self.cfg.q_floor) {
+            // Unpacked (`spread_keek`): `P - spread` and `sum dx dx^T`.
+            let mut delta = self.p;
+            let mut keek = SMatrix::<T, N, N>::from_diagonal(&self.acc_keek_diag);
+            for j in 0..N {
+                delta[(j, j)] -= self.spread_keek[(j, j)];
+                for i in (j + 1)..N {
+                    delta[(i, j)] -= self.spread_keek[(i, j)];
+                    delta[(j, i)] -= self.spread_keek[(i, j)];
+                    keek[(i, j)] = self.spread_keek[(j, i)];
+                    keek[(j, i)] = self.spread_keek[(j, i)];
+                }
+            }
+            match sage_husa_cov(q, d, &keek, &delta, self.cfg.q_floor) {
                 Some(ad) => {
                     fallbacks += u32::from(ad.fallback);
                     *q = ad.cov;
@@ -437,9 +452,6 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             }
         }
         mirror_lower(&mut p);
-        if adapt_q {
-            mirror_lower(&mut spread);
-        }
         let mut l = SMatrix::<T, N, N>::zeros();
         let repaired = self.factor(&mut p, &mut l)?;
         // Nothing can fail from here on.
@@ -452,9 +464,15 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             self.q = q_new;
             self.q_mean = q_mean;
             self.q_k = q_k;
-            self.spread = spread;
+            // The spread on and below the diagonal, no updates' sum above it yet.
+            for j in 0..N {
+                for i in 0..j {
+                    spread[(i, j)] = T::zero();
+                }
+            }
+            self.spread_keek = spread;
             self.acc_ke = SVector::zeros();
-            self.acc_keek = SMatrix::zeros();
+            self.acc_keek_diag = SVector::zeros();
             self.acc_n = 0;
         }
         self.health.predicts = self.health.predicts.wrapping_add(1);
@@ -679,8 +697,13 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.health.updates_accepted = self.health.updates_accepted.wrapping_add(1);
         if a.q_cov || a.q_mean {
             self.acc_ke += dx;
-            add_outer_lower(&mut self.acc_keek, T::one(), &dx);
-            mirror_lower(&mut self.acc_keek);
+            // `sum dx dx^T`: strictly lower part above the diagonal of `spread_keek`.
+            for j in 0..N {
+                self.acc_keek_diag[j] += dx[j] * dx[j];
+                for i in (j + 1)..N {
+                    self.spread_keek[(j, i)] += dx[i] * dx[j];
+                }
+            }
             self.acc_n = self.acc_n.saturating_add(1);
         }
         self.adapt_r(noise, &e, z, &zhat0, &pzz);
