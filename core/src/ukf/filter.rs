@@ -25,7 +25,7 @@ use super::adapt::{AdaptConfig, FadingStats, MeasNoise, sage_husa_cov, sage_husa
 use super::gate::{gating_cov, nis};
 use super::pd::{add_outer_lower, all_finite, finalize, finalize_in_place, mirror_lower};
 use super::space::{Euclidean, Space};
-use super::weights::SigmaWeights;
+use super::weights::{CompactWeights, SigmaWeights};
 
 /// Measurement statistics of an update: `(z^ without r, z^, P_zz, P_xz)`.
 type MeasStats<T, const N: usize, const M: usize> = (SVector<T, M>, SVector<T, M>, SMatrix<T, M, M>, SMatrix<T, N, M>);
@@ -152,7 +152,8 @@ pub struct Ukf<T: RealField + Copy, const N: usize, const S: usize, X = Euclidea
     /// Process noise mean (adapted when `q_mean` is on).
     q_mean: SVector<T, N>,
     cfg: UkfConfig<T>,
-    w: SigmaWeights<T, S>,
+    /// The sigma-point weights, compact (`weights()` expands them).
+    w: CompactWeights<T>,
     q_k: u32,
     /// Two symmetric matrices of the Sage-Husa Q step in one (RAM on the M4F: 840 B per filter,
     /// which the boot path holds twice): the previous predict's spread `sum Wc r r^T` on and
@@ -186,7 +187,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             q_mean: SVector::zeros(),
             q_k: cfg.adapt.k0,
             cfg,
-            w,
+            w: CompactWeights::of(&w),
             spread_keek: SMatrix::zeros(),
             acc_ke: SVector::zeros(),
             acc_keek_diag: SVector::zeros(),
@@ -215,7 +216,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.q_mean = SVector::zeros();
         self.q_k = cfg.adapt.k0;
         self.cfg = cfg;
-        self.w = w;
+        self.w = CompactWeights::of(&w);
         self.spread_keek = SMatrix::zeros();
         self.acc_ke = SVector::zeros();
         self.acc_keek_diag = SVector::zeros();
@@ -238,8 +239,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     pub fn config(&self) -> &UkfConfig<T> {
         &self.cfg
     }
-    pub fn weights(&self) -> &SigmaWeights<T, S> {
-        &self.w
+    pub fn weights(&self) -> SigmaWeights<T, S> {
+        self.w.expand()
     }
 
     /// Replace the state (e.g. reset an error state to zero after injecting it).
@@ -420,10 +421,11 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         } else {
             (self.q_mean, self.q_k, 0)
         };
-        let xm = X::mean(&prop, &self.w.wm);
+        let w = self.weights();
+        let xm = X::mean(&prop, &w.wm);
         let mut spread = SMatrix::<T, N, N>::zeros();
         let two = T::one() + T::one();
-        for (k, (c, wc)) in prop.iter().zip(self.w.wc.iter()).enumerate() {
+        for (k, (c, wc)) in prop.iter().zip(w.wc.iter()).enumerate() {
             if !paired(k) {
                 let r = X::residual(c, &xm);
                 add_outer_lower(&mut spread, *wc, &r);
@@ -434,7 +436,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         }
         if lin_from < N {
             // The common part `c` of the paired points: 2 (N - lin_from) of them, weight wc each.
-            let wc = self.w.wc.last().copied().unwrap_or_else(T::zero);
+            let wc = self.w.wi;
             let c = X::residual(&f0, &xm);
             add_outer_lower(&mut spread, two * T::from_subset(&((N - lin_from) as f64)) * wc, &c);
         }
@@ -752,11 +754,12 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                 *o = z0;
             }
         }
-        let zhat0 = Z::mean(&zs, &self.w.wm);
+        let w = self.weights();
+        let zhat0 = Z::mean(&zs, &w.wm);
         let zhat = if self.cfg.adapt.r_mean { Z::add(&zhat0, &noise.r_mean) } else { zhat0 };
         let mut pzz = SMatrix::<T, M, M>::zeros();
         let mut pxz = SMatrix::<T, N, M>::zeros();
-        for (k, ((zi, xi), wc)) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()).enumerate() {
+        for (k, ((zi, xi), wc)) in zs.iter().zip(pts.iter()).zip(w.wc.iter()).enumerate() {
             let rz = Z::residual(zi, &zhat);
             for m in 0..M {
                 let wr = *wc * rz[m];
