@@ -94,7 +94,7 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
 /// Stack painting: the board reports its stack peak at the end of a run. 12 s with the sensors
 /// covers the deepest paths measured so far (boot, the end of the alignment at 10 s, the filter).
 /// The bound is the 32 KiB RAM goal less this board's static RAM (24 B, `cargo xtask size`):
-/// today's figure is 32,400 B (docs/PERFORMANCE.md, "Firmware size and RAM", which also says why
+/// today's figure is 31,992 B (docs/PERFORMANCE.md, "Firmware size and RAM", which also says why
 /// the STM32 board, with 1,100 B of static RAM, is estimated 0.7 KiB over the goal).
 #[test]
 fn the_stack_peak_is_painted_and_reported() {
