@@ -358,7 +358,8 @@ fn the_history_carries_the_corrections_so_the_same_fix_twice_barely_moves_the_st
     nav.update_position(1000 * DT_US, z, FIX_COV).unwrap();
     let first = (pos(&nav) - p0).norm();
     // The past the filter compares with is the corrected one: at the fix time, the corrected
-    // history now sits near the fix.
+    // history now sits near the fix (its correction applied: it is deferred to the next read).
+    nav.flush_history();
     let ep = nav.history().epoch(1000 * DT_US, nav.t_us(), nav.nominal(), 9.81, 300.0).unwrap();
     let resid = (ep.nom.pos_ned_m - Vector3::from(z)).norm();
     let p1 = pos(&nav);
@@ -462,4 +463,59 @@ fn delayed_update_cost() {
         accepted += u32::from(ok);
     }
     println!("{kind}: {accepted} of 200 accepted, {} delayed", nav.delayed_updates());
+}
+
+/// Five simulated seconds at the head's rates, as `nav.five_seconds_at_head_rates` of
+/// `cargo xtask bench-target` runs them, for a function-level profile on the host:
+/// `valgrind --tool=callgrind` on `cargo test --release -p subnav-core --features std --lib --
+/// --ignored head_rates_profile` (then `callgrind_annotate --inclusive=yes`).
+#[test]
+#[ignore = "for callgrind, see the doc comment"]
+fn head_rates_profile() {
+    use crate::head;
+    let imu = |t_us: u64| ImuSample { t_us, gyro_radps: [0.001, -0.002, 0.01], accel_mps2: [0.05, 0.01, -9.81], temp_c: 10.0 };
+    let init = NavInit {
+        t_us: 0,
+        att_nb: UnitQuaternion::from_euler_angles(0.01, -0.02, 0.5),
+        vel_ned_mps: Vector3::new(1.0, 0.5, 0.0),
+        pos_ned_m: Vector3::new(0.0, 0.0, 10.0),
+    };
+    let mut nav = NavFilter15::new(head::nav_config(), init).unwrap();
+    let mut t = 0u64;
+    for _ in 0..1000 {
+        t += 5_000;
+        let _ = nav.propagate(&imu(t));
+    }
+    let mount = head::dvl_mounting();
+    let mut accepted = 0u32;
+    for _rep in 0..3 {
+        for k in 0..1000u32 {
+            t += 5_000;
+            let _ = nav.propagate(&imu(t));
+            if k % 20 == 0 {
+                let yaw = nav.nominal().yaw_rad();
+                let z = nav.nominal().pos_ned_m.z;
+                accepted += u32::from(nav.update_heading(t, yaw, None).is_ok_and(|r| r.accepted));
+                accepted += u32::from(nav.update_depth(t, z, None).is_ok_and(|r| r.accepted));
+            }
+            if k % 40 == 7 {
+                let v_b = nav.nominal().att_nb.inverse_transform_vector(&nav.nominal().vel_ned_mps);
+                let v_d = mount.rot_body_from_dvl.inverse_transform_vector(&v_b);
+                let m = DvlMeasurement {
+                    t_us: t.saturating_sub(100_000),
+                    vel_dvl_mps: [v_d.x, v_d.y, v_d.z],
+                    covariance_m2ps2: None,
+                    fom_mps: Some(0.01),
+                    gyro_radps: [0.0; 3],
+                };
+                accepted += u32::from(nav.update_dvl(&m, &mount).is_ok_and(|r| r.accepted));
+            }
+            if k == 500 {
+                let p = nav.nominal().pos_ned_m;
+                let fix = nav.update_position(t.saturating_sub(3_000_000), [p.x, p.y, p.z], [4.0, 0.0, 0.0, 4.0, 0.0, 4.0]);
+                accepted += u32::from(fix.is_ok_and(|r| r.accepted));
+            }
+        }
+    }
+    println!("accepted {accepted}, predicts {}", nav.ukf().health().predicts);
 }

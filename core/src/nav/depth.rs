@@ -1,10 +1,11 @@
 //! Depth update from the pressure sensor (`DepthSample::depth_m`, NED z, positive down).
 //!
-//! `z = p_z + dp_z`: linear, so the UKF reproduces the Kalman update exactly.
+//! `z = p_z + dp_z`: linear, so the update is the exact Kalman update
+//! ([`crate::ukf::Ukf::update_linear`]: what the sigma points gave, at a fraction of the cost).
 
-use nalgebra::{SVector, Vector1};
+use nalgebra::{SMatrix, SVector, Vector1};
 
-use crate::ukf::{Euclidean, UpdateReport};
+use crate::ukf::UpdateReport;
 
 use super::filter::{KIND_DEPTH, NavError, NavFilter, settle};
 use super::state::{NominalState, POS};
@@ -25,7 +26,12 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             }
         }
         let nom = self.nom;
-        let r = self.ukf.update::<1, Euclidean, _>(&Vector1::new(depth_m), &mut noise, |dx| h_depth(&nom, dx));
+        // Linear in the error state: the exact Kalman update (`Ukf::update_linear`).
+        let mut hm = SMatrix::<f32, 1, N>::zeros();
+        if let Some(v) = hm.get_mut((0, POS + 2)) {
+            *v = 1.0;
+        }
+        let r = self.ukf.update_linear::<1, _>(&Vector1::new(depth_m), &mut noise, &hm, |dx| h_depth(&nom, dx));
         settle(&mut self.noise_depth, noise, &r);
         self.end_update(KIND_DEPTH, t_us, r, false)
     }

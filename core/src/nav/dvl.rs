@@ -28,7 +28,7 @@ use crate::ukf::{Euclidean, UpdateReport};
 
 use super::filter::{KIND_VELOCITY, NavError, NavFilter, settle};
 use super::rotation::quat_from_rotation_vector;
-use super::state::{ATT, BG, MARKOV, NominalState, VEL, seg};
+use super::state::{ATT, BA, BG, MARKOV, NominalState, VEL, seg};
 
 /// A DVL velocity of more than this (m/s, any axis) is implausible for the vehicle and refused
 /// like a non-finite one.
@@ -128,7 +128,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
         let past = if delayed { Some(self.past_epoch(m.t_us)?) } else { None };
         let nom = self.nom;
-        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut meas, |dx| match &past {
+        // Current, 15 states: the model reads attitude, velocity and gyro bias (states 0..12),
+        // not the accelerometer bias (`update_dep`); the retrodiction reads every state.
+        let dep = if past.is_some() || N > BA + 3 { N } else { BA };
+        let r = self.ukf.update_dep::<3, Euclidean, _>(&z, &mut meas, dep, |dx| match &past {
             Some(ep) => h_dvl(&ep.nom, &ep.map(dx), &mount, &gyro),
             None => h_dvl(&nom, dx, &mount, &gyro),
         });

@@ -32,7 +32,8 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         }
         let nom = self.nom;
         let z = Vector1::new(crate::ukf::wrap_pi(heading_rad));
-        let r = self.ukf.update::<1, AngleSpace, _>(&z, &mut noise, |dx| h_heading(&nom, dx));
+        // The heading reads only the attitude error (`update_dep`: 7 evaluations, not 2N + 1).
+        let r = self.ukf.update_dep::<1, AngleSpace, _>(&z, &mut noise, ATT + 3, |dx| h_heading(&nom, dx));
         settle(&mut self.noise_heading, noise, &r);
         self.end_update(KIND_HEADING, t_us, r, false)
     }

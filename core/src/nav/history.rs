@@ -49,7 +49,12 @@
 //! the increments above are *differences* of nominal states, so a change of the current nominal
 //! that did not reach the past would be counted as specific force (measured: leaving the
 //! predicts' means out of the history made the 3 s late fix of `delay_tests` end 7.5 mm instead
-//! of 0.7 mm from the on-time one).
+//! of 0.7 mm from the on-time one). The corrections are deferred and summed (issue 38:
+//! `NavFilter::inject`): those of one instant add up, a pending one is carried to the next
+//! predict's time through the same error transition, and it is applied to the entries before a
+//! new one is recorded; a delayed fusion reads its two bracketing entries through it
+//! ([`History::epoch_with`]). One pass over the entries per grid point instead of one per
+//! injection.
 //!
 //! **Why this and not the alternatives** (RAM on the MCU: firmware <= 32 KiB including stack,
 //! 29.4 KiB used before this module):
@@ -220,6 +225,11 @@ impl History {
         self.next_grid_us = (t_us / HISTORY_SPACING_US).saturating_add(1).saturating_mul(HISTORY_SPACING_US);
     }
 
+    /// Whether [`Self::record`] at `t_us` would add an entry.
+    pub fn due(&self, t_us: u64) -> bool {
+        t_us >= self.next_grid_us
+    }
+
     /// The filter coasted up to `t_us`.
     pub fn mark_coast(&mut self, t_us: u64) {
         self.coast_end_us = Some(t_us);
@@ -228,6 +238,21 @@ impl History {
     /// Nominal at `t_m` (between the oldest entry and `now`, the current nominal at `t_now`),
     /// and the interval `[t_m, t_now]`; `None` if `t_m` is older than the history or after `t_now`.
     pub fn epoch(&self, t_m_us: u64, t_now_us: u64, now: &NominalState, gravity_mps2: f32, markov_tau_s: f32) -> Option<PastEpoch> {
+        self.epoch_with(t_m_us, t_now_us, now, gravity_mps2, markov_tau_s, |e| *e)
+    }
+
+    /// [`Self::epoch`] with the stored entries read through `fix` (a correction not yet applied
+    /// to the history: only the two entries around `t_m` need it; the current nominal `now`
+    /// has it already).
+    pub fn epoch_with(
+        &self,
+        t_m_us: u64,
+        t_now_us: u64,
+        now: &NominalState,
+        gravity_mps2: f32,
+        markov_tau_s: f32,
+        fix: impl Fn(&Snapshot) -> Snapshot,
+    ) -> Option<PastEpoch> {
         if t_m_us > t_now_us {
             return None;
         }
@@ -235,13 +260,18 @@ impl History {
         // Bracket: the last entry at or before t_m, and its successor (or the current nominal).
         let mut before: Option<Snapshot> = None;
         let mut after = cur;
+        let mut after_stored = false;
         for i in (0..self.len).rev() {
             let e = *self.get(i)?;
             if e.t_us <= t_m_us {
-                before = Some(e);
+                before = Some(fix(&e));
                 break;
             }
             after = e;
+            after_stored = true;
+        }
+        if after_stored {
+            after = fix(&after);
         }
         let past = before?.lerp(&after, t_m_us);
         if !past.is_finite() {

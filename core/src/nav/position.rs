@@ -5,7 +5,7 @@
 //! yz, zz), so R adaptation is off for it by default. The covariance is checked (finite, PD) and
 //! refused otherwise. A position reset (re-acquisition of a lost position) is here too.
 
-use nalgebra::{Matrix3, SVector, Vector3};
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 use crate::ukf::pd;
 use crate::ukf::{Euclidean, UpdateReport};
@@ -43,13 +43,22 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             noise.r = r;
         }
         let z = Vector3::from(pos_ned_m);
-        // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
         let past = if delayed { Some(self.past_epoch(t_us)?) } else { None };
         let nom = self.nom;
-        let res = self.ukf.update::<3, Euclidean, _>(&z, &mut noise, |dx| match &past {
-            Some(ep) => h_position(&ep.nom, &ep.map(dx)),
-            None => h_position(&nom, dx),
-        });
+        let res = match &past {
+            // Mapped back through the (nonlinear) retrodiction: sigma points.
+            Some(ep) => self.ukf.update::<3, Euclidean, _>(&z, &mut noise, |dx| h_position(&ep.nom, &ep.map(dx))),
+            // Current: linear in the error state, the exact Kalman update.
+            None => {
+                let mut hm = SMatrix::<f32, 3, N>::zeros();
+                for k in 0..3 {
+                    if let Some(v) = hm.get_mut((k, POS + k)) {
+                        *v = 1.0;
+                    }
+                }
+                self.ukf.update_linear::<3, _>(&z, &mut noise, &hm, |dx| h_position(&nom, dx))
+            }
+        };
         settle(&mut self.noise_pos, noise, &res);
         self.end_update(KIND_POSITION, t_us, res, delayed)
     }
@@ -63,7 +72,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         if t_us.saturating_add(CURRENT_WITHIN_US) >= self.t_us {
             return Some(self.nom.pos_ned_m);
         }
-        self.hist.epoch(t_us, self.t_us, &self.nom, self.cfg.gravity_mps2, self.cfg.markov_tau_s).map(|e| e.nom.pos_ned_m)
+        self.epoch_at(t_us).map(|e| e.nom.pos_ned_m)
     }
 
     /// Position reset (re-acquisition): move the nominal position to `pos_ned_m` and make its

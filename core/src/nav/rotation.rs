@@ -36,6 +36,49 @@ pub fn quat_from_rotation_vector(phi_rad: &Vector3<f32>) -> UnitQuaternion<f32> 
     UnitQuaternion::new_unchecked(Quaternion::new(c, phi_rad.x * k, phi_rad.y * k, phi_rad.z * k))
 }
 
+// Plain 3-vector arithmetic for the per-sample and per-entry code (the strapdown step, the
+// history correction): with nalgebra's quaternion and small-matrix operations, which
+// `opt-level = "s"` keeps out of line, those cost 2-3x the instructions on the M4F.
+pub(crate) fn a3(v: &Vector3<f32>) -> [f32; 3] {
+    [v.x, v.y, v.z]
+}
+pub(crate) fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+pub(crate) fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+pub(crate) fn mul(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
+    [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
+}
+/// Rows of the rotation matrix of the unit quaternion `(w, x, y, z)`.
+pub(crate) fn rows_of(w: f32, x: f32, y: f32, z: f32) -> [[f32; 3]; 3] {
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
+/// Microseconds to seconds. A difference that fits 32 bits converts in hardware on the M4F
+/// (`u64 as f32` is a software routine); the same value either way (both round the exact
+/// integer to nearest).
+pub(crate) fn us_to_s(d_us: u64) -> f32 {
+    match u32::try_from(d_us) {
+        Ok(d) => d as f32 * 1e-6,
+        Err(_) => d_us as f32 * 1e-6,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

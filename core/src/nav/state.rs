@@ -57,6 +57,18 @@ pub struct NominalState {
 }
 
 impl NominalState {
+    /// Level, at rest at the origin, no biases.
+    pub const fn zero() -> Self {
+        Self {
+            att_nb: UnitQuaternion::new_unchecked(nalgebra::Quaternion::from_vector(nalgebra::Vector4::new(0.0, 0.0, 0.0, 1.0))),
+            vel_ned_mps: Vector3::new(0.0, 0.0, 0.0),
+            pos_ned_m: Vector3::new(0.0, 0.0, 0.0),
+            gyro_bias_radps: Vector3::new(0.0, 0.0, 0.0),
+            accel_bias_mps2: Vector3::new(0.0, 0.0, 0.0),
+            gyro_markov_radps: Vector3::new(0.0, 0.0, 0.0),
+        }
+    }
+
     /// Fold an error-state mean into the nominal state.
     pub fn inject<const N: usize>(&mut self, dx: &SVector<f32, N>) {
         let phi = seg(dx, ATT);
@@ -76,13 +88,18 @@ impl NominalState {
         yaw_of(&self.att_nb)
     }
 
+    /// All components finite, by their sum (checked on every IMU sample): NaN and infinities
+    /// propagate through it; finite parts whose sum overflows (components of ~1e37) count as
+    /// not finite, which refuses the sample (no real state is near that).
     pub fn is_finite(&self) -> bool {
-        self.att_nb.coords.iter().all(|v| v.is_finite())
-            && self.vel_ned_mps.iter().all(|v| v.is_finite())
-            && self.pos_ned_m.iter().all(|v| v.is_finite())
-            && self.gyro_bias_radps.iter().all(|v| v.is_finite())
-            && self.accel_bias_mps2.iter().all(|v| v.is_finite())
-            && self.gyro_markov_radps.iter().all(|v| v.is_finite())
+        let sum = |v: &[f32]| v.iter().fold(0.0f32, |a, b| a + b);
+        (sum(self.att_nb.coords.as_slice())
+            + sum(self.vel_ned_mps.as_slice())
+            + sum(self.pos_ned_m.as_slice())
+            + sum(self.gyro_bias_radps.as_slice())
+            + sum(self.accel_bias_mps2.as_slice())
+            + sum(self.gyro_markov_radps.as_slice()))
+        .is_finite()
     }
 }
 

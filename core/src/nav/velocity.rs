@@ -43,7 +43,10 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // One closure for both cases (one instantiation of the UKF update: flash on the M4F).
         let past = if delayed { Some(self.past_epoch(t_us)?) } else { None };
         let nom = self.nom;
-        let r = self.ukf.update::<3, Euclidean, _>(&z, &mut noise, |dx| match &past {
+        // Current: the model reads attitude and velocity only (`update_dep`); the retrodiction
+        // reads every state.
+        let dep = if past.is_some() { N } else { VEL + 3 };
+        let r = self.ukf.update_dep::<3, Euclidean, _>(&z, &mut noise, dep, |dx| match &past {
             Some(ep) => h_body_velocity(&ep.nom, &ep.map(dx)),
             None => h_body_velocity(&nom, dx),
         });

@@ -25,7 +25,10 @@ use super::adapt::{AdaptConfig, FadingStats, MeasNoise, sage_husa_cov, sage_husa
 use super::gate::{gating_cov, nis};
 use super::pd::{add_outer_lower, all_finite, finalize, finalize_in_place, mirror_lower};
 use super::space::{Euclidean, Space};
-use super::weights::SigmaWeights;
+use super::weights::{CompactWeights, SigmaWeights};
+
+/// Measurement statistics of an update: `(z^ without r, z^, P_zz, P_xz)`.
+type MeasStats<T, const N: usize, const M: usize> = (SVector<T, M>, SVector<T, M>, SMatrix<T, M, M>, SMatrix<T, N, M>);
 
 /// Tuning of a [`Ukf`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -149,11 +152,16 @@ pub struct Ukf<T: RealField + Copy, const N: usize, const S: usize, X = Euclidea
     /// Process noise mean (adapted when `q_mean` is on).
     q_mean: SVector<T, N>,
     cfg: UkfConfig<T>,
-    w: SigmaWeights<T, S>,
+    /// The sigma-point weights, compact (`weights()` expands them).
+    w: CompactWeights<T>,
     q_k: u32,
-    spread: SMatrix<T, N, N>,
+    /// Two symmetric matrices of the Sage-Husa Q step in one (RAM on the M4F: 840 B per filter,
+    /// which the boot path holds twice): the previous predict's spread `sum Wc r r^T` on and
+    /// below the diagonal, the strictly lower part of `sum dx dx^T` over the updates since
+    /// then above it (transposed); its diagonal in `acc_keek_diag`.
+    spread_keek: SMatrix<T, N, N>,
     acc_ke: SVector<T, N>,
-    acc_keek: SMatrix<T, N, N>,
+    acc_keek_diag: SVector<T, N>,
     acc_n: u32,
     health: UkfHealth<T>,
     _space: PhantomData<X>,
@@ -179,10 +187,10 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             q_mean: SVector::zeros(),
             q_k: cfg.adapt.k0,
             cfg,
-            w,
-            spread: SMatrix::zeros(),
+            w: CompactWeights::of(&w),
+            spread_keek: SMatrix::zeros(),
             acc_ke: SVector::zeros(),
-            acc_keek: SMatrix::zeros(),
+            acc_keek_diag: SVector::zeros(),
             acc_n: 0,
             health,
             _space: PhantomData,
@@ -208,10 +216,10 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.q_mean = SVector::zeros();
         self.q_k = cfg.adapt.k0;
         self.cfg = cfg;
-        self.w = w;
-        self.spread = SMatrix::zeros();
+        self.w = CompactWeights::of(&w);
+        self.spread_keek = SMatrix::zeros();
         self.acc_ke = SVector::zeros();
-        self.acc_keek = SMatrix::zeros();
+        self.acc_keek_diag = SVector::zeros();
         self.acc_n = 0;
         Ok(())
     }
@@ -231,8 +239,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     pub fn config(&self) -> &UkfConfig<T> {
         &self.cfg
     }
-    pub fn weights(&self) -> &SigmaWeights<T, S> {
-        &self.w
+    pub fn weights(&self) -> SigmaWeights<T, S> {
+        self.w.expand()
     }
 
     /// Replace the state (e.g. reset an error state to zero after injecting it).
@@ -332,8 +340,19 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         let q_mean = if a.q_mean { self.q_mean * (T::one() - d) + self.acc_ke * d } else { self.q_mean };
         let mut fallbacks = 0;
         if a.q_cov {
-            let delta = self.p - self.spread;
-            match sage_husa_cov(q, d, &self.acc_keek, &delta, self.cfg.q_floor) {
+            // Unpacked (`spread_keek`): `P - spread` and `sum dx dx^T`.
+            let mut delta = self.p;
+            let mut keek = SMatrix::<T, N, N>::from_diagonal(&self.acc_keek_diag);
+            for j in 0..N {
+                delta[(j, j)] -= self.spread_keek[(j, j)];
+                for i in (j + 1)..N {
+                    delta[(i, j)] -= self.spread_keek[(i, j)];
+                    delta[(j, i)] -= self.spread_keek[(i, j)];
+                    keek[(i, j)] = self.spread_keek[(j, i)];
+                    keek[(j, i)] = self.spread_keek[(j, i)];
+                }
+            }
+            match sage_husa_cov(q, d, &keek, &delta, self.cfg.q_floor) {
                 Some(ad) => {
                     fallbacks += u32::from(ad.fallback);
                     *q = ad.cov;
@@ -347,7 +366,23 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
     /// Time update: `x_i <- f(sigma_i)`, `P <- sum Wc r r^T + q_scale * Q` (with the Sage-Husa
     /// `Q`/`q` step first when it is on). Refused (nothing changed, see the module doc) if
     /// `q_scale` or a model output is not finite, or the new `P` cannot be made PD.
-    pub fn predict<F>(&mut self, q_scale: T, mut f: F) -> Result<(), UkfError>
+    pub fn predict<F>(&mut self, q_scale: T, f: F) -> Result<(), UkfError>
+    where
+        F: FnMut(&SVector<T, N>) -> SVector<T, N>,
+    {
+        self.predict_dep(q_scale, N, f)
+    }
+
+    /// [`Self::predict`] for a model `f` that is affine along the states `lin_from..N` at `x`
+    /// (the caller's promise: `f(x + d) - f(x) = f(x) - f(x - d)` for every `d` that is zero
+    /// in the states `0..lin_from`). Exact, and cheaper for `lin_from < N`: the sigma points of
+    /// the Cholesky columns `lin_from..N` are such `x +- d` pairs (the factor is lower
+    /// triangular), so `f(x - d)` is `f(x) - (f(x + d) - f(x))` without evaluating `f`, and the
+    /// pair's share of the spread, `wc (r+ r+^T + r- r-^T)` with `r+- = c +- a`, is
+    /// `2 wc (a a^T + c c^T)`, where `c = f(x) - mean` is common to every such pair: one outer
+    /// product per pair instead of two. `lin_from = N` is the plain predict. E.g. the INS
+    /// error transition without an attitude error is linear in the other 12 (or 15) states.
+    pub fn predict_dep<F>(&mut self, q_scale: T, lin_from: usize, mut f: F) -> Result<(), UkfError>
     where
         F: FnMut(&SVector<T, N>) -> SVector<T, N>,
     {
@@ -355,30 +390,70 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteInput);
         }
+        let lin_from = lin_from.min(N);
+        // Point k >= 1 comes from column (k - 1) % N, `+` for k <= N; columns >= lin_from pair.
+        let paired = |k: usize| k > 0 && (k - 1) % N >= lin_from;
         // Propagated in place: one array of 2N+1 points on the stack, not two.
         let mut prop = self.sigma_points();
-        for o in prop.iter_mut() {
+        for (k, o) in prop.iter_mut().enumerate() {
+            if paired(k) && k > N {
+                continue;
+            }
             *o = f(o);
             if !all_finite(o) {
                 self.health.nonfinite_rejects += 1;
                 return Err(UkfError::NonFiniteResult);
             }
         }
-        let mut q = self.q;
-        let (q_mean, q_k, fallbacks) = self.adapted_q(&mut q);
-        let xm = X::mean(&prop, &self.w.wm);
-        let mut spread = SMatrix::<T, N, N>::zeros();
-        for (c, wc) in prop.iter().zip(self.w.wc.iter()) {
-            let r = X::residual(c, &xm);
-            add_outer_lower(&mut spread, *wc, &r);
+        let f0 = prop.first().copied().unwrap_or(self.x);
+        for i in lin_from..N {
+            let a = prop.get(1 + i).map(|p| X::residual(p, &f0)).unwrap_or_else(SVector::zeros);
+            if let Some(p) = prop.get_mut(1 + N + i) {
+                *p = X::add(&f0, &(-a));
+            }
         }
-        mirror_lower(&mut spread);
+        // Q adapted (Sage-Husa) or the stored one; only the adaptation needs the spread kept.
+        let adapt_q = self.cfg.adapt.q_cov || self.cfg.adapt.q_mean;
+        let mut q_new = SMatrix::<T, N, N>::zeros();
+        let (q_mean, q_k, fallbacks) = if adapt_q {
+            q_new = self.q;
+            self.adapted_q(&mut q_new)
+        } else {
+            (self.q_mean, self.q_k, 0)
+        };
+        let w = self.weights();
+        let xm = X::mean(&prop, &w.wm);
+        let mut spread = SMatrix::<T, N, N>::zeros();
+        let two = T::one() + T::one();
+        for (k, (c, wc)) in prop.iter().zip(w.wc.iter()).enumerate() {
+            if !paired(k) {
+                let r = X::residual(c, &xm);
+                add_outer_lower(&mut spread, *wc, &r);
+            } else if k <= N {
+                let a = X::residual(c, &f0);
+                add_outer_lower(&mut spread, two * *wc, &a);
+            }
+        }
+        if lin_from < N {
+            // The common part `c` of the paired points: 2 (N - lin_from) of them, weight wc each.
+            let wc = self.w.wi;
+            let c = X::residual(&f0, &xm);
+            add_outer_lower(&mut spread, two * T::from_subset(&((N - lin_from) as f64)) * wc, &c);
+        }
         let x_new = if self.cfg.adapt.q_mean { X::add(&xm, &q_mean) } else { xm };
         if !all_finite(&x_new) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         }
-        let mut p = spread + q * q_scale;
+        // P = spread + q_scale Q on the lower triangle, mirrored (Q is symmetric).
+        let q = if adapt_q { &q_new } else { &self.q };
+        let mut p = spread;
+        for j in 0..N {
+            for i in j..N {
+                p[(i, j)] += q[(i, j)] * q_scale;
+            }
+        }
+        mirror_lower(&mut p);
         let mut l = SMatrix::<T, N, N>::zeros();
         let repaired = self.factor(&mut p, &mut l)?;
         // Nothing can fail from here on.
@@ -386,14 +461,22 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.health.adapt_fallbacks = self.health.adapt_fallbacks.wrapping_add(fallbacks);
         self.p = p;
         self.l = l;
-        self.q = q;
-        self.q_mean = q_mean;
-        self.q_k = q_k;
         self.x = x_new;
-        self.spread = spread;
-        self.acc_ke = SVector::zeros();
-        self.acc_keek = SMatrix::zeros();
-        self.acc_n = 0;
+        if adapt_q {
+            self.q = q_new;
+            self.q_mean = q_mean;
+            self.q_k = q_k;
+            // The spread on and below the diagonal, no updates' sum above it yet.
+            for j in 0..N {
+                for i in 0..j {
+                    spread[(i, j)] = T::zero();
+                }
+            }
+            self.spread_keek = spread;
+            self.acc_ke = SVector::zeros();
+            self.acc_keek_diag = SVector::zeros();
+            self.acc_n = 0;
+        }
         self.health.predicts = self.health.predicts.wrapping_add(1);
         Ok(())
     }
@@ -410,18 +493,105 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         &mut self,
         z: &SVector<T, M>,
         noise: &mut MeasNoise<T, M>,
+        h: H,
+    ) -> Result<UpdateReport<T>, UkfError>
+    where
+        Z: Space<T, M>,
+        H: FnMut(&SVector<T, N>) -> SVector<T, M>,
+    {
+        self.update_dep::<M, Z, H>(z, noise, N, h)
+    }
+
+    /// [`Self::update`] for a model `h` that reads only the states `0..dep` (the caller's
+    /// promise). Exact, and cheaper for `dep < N`: the sigma points of the Cholesky columns
+    /// `dep..N` differ from `x` only in states `dep..` (the factor is lower triangular), so their
+    /// predicted measurement is `h(x)` without evaluating `h`, and each such pair's share of
+    /// `P_xz` is `wc (z(x) - z^) (d - d) = 0`, which is skipped. `dep = N` is the plain update.
+    /// E.g. the compass heading reads only the attitude error (3 of 15 states): 7 evaluations of
+    /// `h` instead of 31.
+    pub fn update_dep<const M: usize, Z, H>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        dep: usize,
         mut h: H,
     ) -> Result<UpdateReport<T>, UkfError>
     where
         Z: Space<T, M>,
         H: FnMut(&SVector<T, N>) -> SVector<T, M>,
     {
+        self.update_with::<M, Z>(z, noise, &mut |ukf, noise, l| ukf.measurement_stats::<M, Z, H>(l.unwrap_or(&ukf.l), noise, &mut h, dep))
+    }
+
+    /// Exact Kalman update for a measurement linear in the state, `z = h(x) + H (x' - x)`: the
+    /// sigma-point statistics of a linear model are `z^ = h(x)`, `P_zz = H P H^T`,
+    /// `P_xz = P H^T` exactly (the unscented transform is exact to second order, and a linear
+    /// model has no higher one), so they are computed in closed form instead of from `2N + 1`
+    /// evaluations. Everything after the statistics (gate, fading factor, gain, covariance
+    /// `P - K S K^T`, symmetrised and factored, the Sage-Husa R step, refusals) is the code of
+    /// [`Self::update`]; `h` is evaluated once, at `x`. Euclidean measurement space.
+    pub fn update_linear<const M: usize, H>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        hm: &SMatrix<T, M, N>,
+        h: H,
+    ) -> Result<UpdateReport<T>, UkfError>
+    where
+        H: Fn(&SVector<T, N>) -> SVector<T, M>,
+    {
+        let zhat0 = h(&self.x);
+        if !all_finite(&zhat0) {
+            self.health.nonfinite_rejects += 1;
+            return Err(UkfError::NonFiniteResult);
+        }
+        self.update_with::<M, Euclidean>(z, noise, &mut |ukf, noise, l| {
+            // P itself, or the fading factor's scaled prior `L_f L_f^T`.
+            let scaled;
+            let p = match l {
+                None => &ukf.p,
+                Some(l) => {
+                    scaled = l * l.transpose();
+                    &scaled
+                }
+            };
+            let pxz: SMatrix<T, N, M> = p * hm.transpose();
+            let mut pzz: SMatrix<T, M, M> = hm * pxz;
+            // Exactly symmetric, as the sigma-point sum is.
+            for i in 0..M {
+                for j in (i + 1)..M {
+                    let v = (pzz[(i, j)] + pzz[(j, i)]) * T::from_subset(&0.5);
+                    pzz[(i, j)] = v;
+                    pzz[(j, i)] = v;
+                }
+            }
+            let zhat = if ukf.cfg.adapt.r_mean { zhat0 + noise.r_mean } else { zhat0 };
+            Some((zhat0, zhat, pzz, pxz))
+        })
+    }
+
+    /// The update after the measurement statistics: `stats(self, noise, L)` gives
+    /// `(z^ without r, z^, P_zz, P_xz)` for the prior with factor `L` (`None`: the stored `P`
+    /// and its factor; `Some`: the fading factor's scaled factor), `None` if a model output is
+    /// not finite.
+    /// `stats` is a trait object so the update's code exists once per measurement size and space
+    /// (flash on the M4F), not once per model.
+    #[allow(clippy::type_complexity)]
+    fn update_with<const M: usize, Z>(
+        &mut self,
+        z: &SVector<T, M>,
+        noise: &mut MeasNoise<T, M>,
+        stats: &mut dyn FnMut(&Self, &MeasNoise<T, M>, Option<&SMatrix<T, N, N>>) -> Option<MeasStats<T, N, M>>,
+    ) -> Result<UpdateReport<T>, UkfError>
+    where
+        Z: Space<T, M>,
+    {
         if !all_finite(z) || !all_finite(&noise.r) || !all_finite(&noise.r_mean) {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteInput);
         }
         let a = self.cfg.adapt;
-        let Some((mut zhat0, mut zhat, mut pzz, mut pxz)) = self.measurement_stats::<M, Z, H>(&self.l, noise, &mut h) else {
+        let Some((mut zhat0, mut zhat, mut pzz, mut pxz)) = stats(self, noise, None) else {
             self.health.nonfinite_rejects += 1;
             return Err(UkfError::NonFiniteResult);
         };
@@ -475,7 +645,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                         if noise.fading_mask == 0 || (i < 64 && noise.fading_mask & (1u64 << i) != 0) { sq } else { T::one() }
                     });
                     let l_f = SMatrix::<T, N, N>::from_diagonal(&scale) * self.l;
-                    if let Some(st) = self.measurement_stats::<M, Z, H>(&l_f, noise, &mut h) {
+                    if let Some(st) = stats(self, noise, Some(&l_f)) {
                         (zhat0, zhat, pzz, pxz) = st;
                         e = Z::residual(z, &zhat);
                         p_prior = l_f * l_f.transpose();
@@ -529,8 +699,13 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         self.health.updates_accepted = self.health.updates_accepted.wrapping_add(1);
         if a.q_cov || a.q_mean {
             self.acc_ke += dx;
-            add_outer_lower(&mut self.acc_keek, T::one(), &dx);
-            mirror_lower(&mut self.acc_keek);
+            // `sum dx dx^T`: strictly lower part above the diagonal of `spread_keek`.
+            for j in 0..N {
+                self.acc_keek_diag[j] += dx[j] * dx[j];
+                for i in (j + 1)..N {
+                    self.spread_keek[(j, i)] += dx[i] * dx[j];
+                }
+            }
             self.acc_n = self.acc_n.saturating_add(1);
         }
         self.adapt_r(noise, &e, z, &zhat0, &pzz);
@@ -545,7 +720,8 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
         l: &SMatrix<T, N, N>,
         noise: &MeasNoise<T, M>,
         h: &mut H,
-    ) -> Option<(SVector<T, M>, SVector<T, M>, SMatrix<T, M, M>, SMatrix<T, N, M>)>
+        dep: usize,
+    ) -> Option<MeasStats<T, N, M>>
     where
         Z: Space<T, M>,
         H: FnMut(&SVector<T, N>) -> SVector<T, M>,
@@ -560,25 +736,43 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X: Space<T, N>> Ukf<T,
                 *p = X::add(&self.x, &(-d));
             }
         }
+        // Point k >= 1 comes from column (k - 1) % N; columns >= dep leave h at h(x).
+        let moves = |k: usize| k == 0 || (k - 1) % N < dep;
         let mut zs = [SVector::<T, M>::zeros(); S];
-        for (o, xi) in zs.iter_mut().zip(pts.iter()) {
+        for (k, (o, xi)) in zs.iter_mut().zip(pts.iter()).enumerate() {
+            if !moves(k) {
+                continue;
+            }
             *o = h(xi);
             if !all_finite(o) {
                 return None;
             }
         }
-        let zhat0 = Z::mean(&zs, &self.w.wm);
+        let z0 = zs[0];
+        for (k, o) in zs.iter_mut().enumerate() {
+            if !moves(k) {
+                *o = z0;
+            }
+        }
+        let w = self.weights();
+        let zhat0 = Z::mean(&zs, &w.wm);
         let zhat = if self.cfg.adapt.r_mean { Z::add(&zhat0, &noise.r_mean) } else { zhat0 };
         let mut pzz = SMatrix::<T, M, M>::zeros();
         let mut pxz = SMatrix::<T, N, M>::zeros();
-        for ((zi, xi), wc) in zs.iter().zip(pts.iter()).zip(self.w.wc.iter()) {
+        for (k, ((zi, xi), wc)) in zs.iter().zip(pts.iter()).zip(w.wc.iter()).enumerate() {
             let rz = Z::residual(zi, &zhat);
-            let rx = X::residual(xi, &self.x);
             for m in 0..M {
                 let wr = *wc * rz[m];
                 for j in 0..M {
                     pzz[(j, m)] += wr * rz[j];
                 }
+            }
+            if !moves(k) {
+                continue;
+            }
+            let rx = X::residual(xi, &self.x);
+            for m in 0..M {
+                let wr = *wc * rz[m];
                 for i in 0..N {
                     pxz[(i, m)] += wr * rx[i];
                 }
@@ -631,3 +825,7 @@ impl<T: RealField + Copy, const N: usize, const S: usize, X> Ukf<T, N, S, X> {
 #[cfg(test)]
 #[path = "refusal_tests.rs"]
 mod refusal_tests;
+
+#[cfg(test)]
+#[path = "shortcut_tests.rs"]
+mod shortcut_tests;

@@ -58,6 +58,36 @@ impl<T: RealField + Copy, const S: usize> SigmaWeights<T, S> {
     }
 }
 
+/// The same weights in 16 bytes: `2N` of the `2N + 1` are equal (RAM on the M4F, where the
+/// filter is held twice at boot: 236 B each).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CompactWeights<T> {
+    pub wm0: T,
+    pub wc0: T,
+    /// `Wm_i = Wc_i`, i >= 1.
+    pub wi: T,
+    pub gamma: T,
+}
+
+impl<T: RealField + Copy> CompactWeights<T> {
+    pub fn of<const S: usize>(w: &SigmaWeights<T, S>) -> Self {
+        let wi = w.wm.get(1).copied().unwrap_or_else(T::zero);
+        let (wm0, wc0) = (w.wm.first().copied().unwrap_or(wi), w.wc.first().copied().unwrap_or(wi));
+        Self { wm0, wc0, wi, gamma: w.gamma }
+    }
+
+    /// The full arrays.
+    pub fn expand<const S: usize>(&self) -> SigmaWeights<T, S> {
+        let mut wm = [self.wi; S];
+        let mut wc = [self.wi; S];
+        if let (Some(m), Some(c)) = (wm.first_mut(), wc.first_mut()) {
+            *m = self.wm0;
+            *c = self.wc0;
+        }
+        SigmaWeights { wm, wc, gamma: self.gamma }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -93,6 +93,7 @@ pub fn run(b: &mut Bench) {
     // 3 s old and a DVL report 0.1 s old, each consistent with the stored past.
     if let Some(mut nav) = head_filter() {
         let t = nav.t_us();
+        nav.flush_history();
         // The first stored instant at least 3 s back, and the position the filter had then.
         let past = (0..64).filter_map(|i| nav.history().get(i)).filter(|s| s.t_us + 3_000_000 <= t).last().copied();
         let (t_fix, p) = past.map(|s| (s.t_us, [s.pos_ned_m.x, s.pos_ned_m.y, s.pos_ned_m.z])).unwrap_or((t, [0.0; 3]));
