@@ -1,7 +1,7 @@
 use super::*;
+use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rand::Rng;
 use rand_distr::Distribution;
 
 /// A recording of `proc` from an IMU with `raw = N R x + b` (exact, plus white noise `sigma`).
