@@ -594,13 +594,14 @@ fn occluded_units(readings: &[(usize, [i16; 4])]) -> u8 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::commands::covariance_is_pd;
     use super::*;
     use subnav_wire::{self as wire, MAX_DOWNLINK_FRAME, MAX_UPLINK_FRAME, NavSolution};
     use subnav_wire::{Command, CommandAck, ConfigItem, RecordReport};
 
-    fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
+    /// Every message of an uplink byte stream; a corrupt frame fails the test.
+    pub(crate) fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
         let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
         bytes
             .iter()

@@ -206,8 +206,9 @@ impl BoardLoop {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::app::tests::decode_all;
     use crate::store::NoStore;
-    use subnav_wire::{self as wire, Board, Command, CommandAck, ConfigItem, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
+    use subnav_wire::{self as wire, Board, Command, CommandAck, ConfigItem, Downlink, Uplink};
 
     /// A board without sensors (never asked: `parts` gives none).
     struct NoSensors;
@@ -289,17 +290,6 @@ mod tests {
         fn reboot(&mut self) {
             self.reboots += 1;
         }
-    }
-
-    fn decode_all(bytes: &[u8]) -> Vec<Uplink> {
-        let mut dec = FrameDecoder::<MAX_UPLINK_FRAME>::new();
-        bytes
-            .iter()
-            .filter_map(|b| match dec.push::<Uplink>(*b) {
-                Decoded::Message(m) => Some(m),
-                _ => None,
-            })
-            .collect()
     }
 
     fn frame(seq: u16, command: Command) -> Vec<u8> {
