@@ -1,8 +1,8 @@
 //! `cargo xtask`: build automation for subnav.
 //!
 //! - `cargo xtask test`  : install what is missing, build both firmware boards, check sizes and
-//!                         that no heap allocator is linked, set up the peer venv, run every test,
-//!                         build the `probe` feature of the host tool.
+//!                         that no heap allocator is linked, set up the peer venv, run every test
+//!                         (the host tool with its default `probe` feature).
 //! - `cargo xtask run`   : build the QEMU firmware and run the main job: the closed-loop dive
 //!   (camera and map in the loop) with a live status, the error summary and the report.
 //! - `cargo xtask build` : build the firmware boards (`--board qemu|stm32f4|all`).
@@ -184,11 +184,6 @@ fn test(rest: &[String]) -> Result<()> {
         c.env("SUBNAV_FIRMWARE_QEMU_ELF", &qemu_elf).env("SUBNAV_PEER_PYTHON", &python).env("SUBNAV_PEER_NODE_MODULES", &node_modules);
         run(&mut c)?;
     }
-    // `subnav flash` / `attach` (probe-rs) cannot be exercised without a board; build them so
-    // they cannot rot.
-    let mut c = host_cargo();
-    c.args(["build", "-p", "subnav-host", "--features", "probe"]);
-    run(&mut c).context("building the probe feature (subnav flash / attach)")?;
     eprintln!("xtask: all tests passed in {:.0} s", started.elapsed().as_secs_f64());
     Ok(())
 }

@@ -34,7 +34,7 @@ enum Command {
     Sun(cli::sun::Args),
     /// Polarization compass on a simulated sky (heading Monte Carlo, sun geolocation) or on a CSV of raw counts.
     Compass(cli::compass::Args),
-    /// Record telemetry live (TCP, serial, or RTT with --features probe) to a lossless recording.
+    /// Record telemetry live (TCP, serial, or RTT through a debug probe) to a lossless recording.
     Record(cli::record::Args),
     /// Export a recording to MCAP (Foxglove) and/or CSV per message kind.
     Export(cli::export::Args),

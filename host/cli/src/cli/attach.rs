@@ -1,4 +1,4 @@
-//! `subnav attach` (built with `--features probe`): attach to a running board through a debug
+//! `subnav attach` (the `probe` feature, on by default): attach to a running board through a debug
 //! probe (probe-rs), stream its defmt logs from the RTT up-channel named `defmt` (and telemetry
 //! from an up-channel named `telemetry`, if the firmware has one), optionally the telemetry UART
 //! too (`--serial`), print them decoded and optionally record everything losslessly; with
@@ -7,8 +7,8 @@
 //! [`super::mavlink::observe`]; nothing goes back to the head, so the autopilot's GPS is not
 //! taken).
 //!
-//! Tested here: it builds (CI builds the feature), its options parse (unit test, run with
-//! `--features probe`), and the shared path from a decoded link event to the autopilot is tested
+//! Tested here: it builds (the `probe` feature is on by default), its options parse (unit test),
+//! and the shared path from a decoded link event to the autopilot is tested
 //! without a probe (`cli::mavlink` tests). Not tested: a real probe and board (none can be
 //! attached on the build machines).
 

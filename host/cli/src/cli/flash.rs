@@ -1,4 +1,4 @@
-//! `subnav flash` (built with `--features probe`): write a firmware ELF to a board's flash with
+//! `subnav flash` (the `probe` feature, on by default): write a firmware ELF to a board's flash with
 //! the probe-rs library, reset it, and optionally stay attached to stream defmt + telemetry
 //! (as `subnav attach`).
 //!

@@ -1,5 +1,5 @@
 //! `subnav record`: read telemetry live (TCP, e.g. QEMU's `-serial tcp::4444,server=on`; a
-//! serial port; or, built with `--features probe`, the RTT up-channels of a board through a
+//! serial port; or, with the `probe` feature (default), the RTT up-channels of a board through a
 //! debug probe) into a lossless recording, with a live one-line status: data rate, frames,
 //! corrupt frames, telemetry the firmware reported dropped, and the latest fix.
 //!
@@ -38,7 +38,7 @@ pub struct Args {
     #[arg(long, default_value_t = 460_800)]
     pub baud: u32,
     /// Record RTT through a debug probe from this chip (e.g. STM32F405RGTx); needs a build with
-    /// `--features probe` and `--elf`.
+    /// the `probe` feature (default) and `--elf`.
     #[arg(long)]
     pub chip: Option<String>,
     /// The firmware ELF: named in the recording so that its defmt stream can be decoded later
@@ -237,6 +237,6 @@ fn record_rtt(args: &Args, chip: &str, format: Format) -> Result<ExitCode> {
 #[cfg(not(feature = "probe"))]
 fn record_rtt(_args: &Args, _chip: &str, _format: Format) -> Result<ExitCode> {
     bail!(
-        "this subnav was built without debug-probe support: rebuild with `cargo build -p subnav-host --features probe` to record RTT with --chip"
+        "this subnav was built without debug-probe support: rebuild with the default features (`cargo build -p subnav-host`, the `probe` feature) to record RTT with --chip"
     )
 }
