@@ -588,6 +588,9 @@ impl Estimator {
         }
         let p = aligned_covariance(nav.covariance(), yaw, cfg.init_sigma_accel_bias, cfg.gravity_mps2);
         nav.set_covariance(p)?;
+        // Without a compass yaw the DVL must not pretend to know it (`set_yaw_unobserved`),
+        // until the first compass fix is fused.
+        nav.set_yaw_unobserved(self.yaw_fix.is_none());
         self.running = true;
         Ok(())
     }
@@ -722,6 +725,7 @@ impl Estimator {
         }
         match result {
             Ok(rep) if rep.accepted => {
+                nav.set_yaw_unobserved(false);
                 self.rejected_run = AngleRun::default();
                 if self.adaptive_r.on && p_yaw < self.adaptive_r.var_rad2 {
                     let e = subnav_core::ukf::wrap_pi(heading_rad - yaw_before);
@@ -734,6 +738,7 @@ impl Estimator {
                 if let Some((mean, sigma)) = self.rejected_run.consensus(RESET_YAW_FIXES) {
                     let yaw = nav.nominal().yaw_rad() + mean;
                     if nav.reset_heading(yaw, sigma).is_ok() {
+                        nav.set_yaw_unobserved(false);
                         self.heading_resets = self.heading_resets.wrapping_add(1);
                         self.aid.heading.resets = self.aid.heading.resets.wrapping_add(1);
                         // The rejected run's innovations measured the wrong heading, not the compass.
@@ -1312,6 +1317,46 @@ mod tests {
         run(&mut e, 20.0, 30.0, |t| Some(deg(40.0 + 90.0 + 180.0 * libm::sinf(13.0 * t))));
         assert_eq!(e.heading_resets, 0);
         assert!((yaw_deg(&e) - 40.0).abs() < 2.0, "{}", yaw_deg(&e));
+    }
+
+    /// Aligned without the compass (the units dark at the surface), at rest with the DVL and the
+    /// depth: nothing measures the yaw, and its sigma stays near its prior until the first
+    /// compass fix. The same run with the DVL allowed to read the yaw (`set_yaw_unobserved(false)`)
+    /// shows what it guards against: the yaw sigma falls with no heading aid at all.
+    #[test]
+    fn an_unaided_yaw_keeps_its_sigma_at_rest_until_the_compass() {
+        let yaw_sigma_deg = |e: &Estimator| e.solution(0).sigma_att_rad[2].to_degrees();
+        let mut results = [0.0f32; 2];
+        for (guard, out) in [true, false].into_iter().zip(&mut results) {
+            let mut e = Estimator::default();
+            run(&mut e, 0.0, 10.5, |_| None);
+            assert_eq!(e.mode(), NavMode::Aided);
+            assert!(yaw_sigma_deg(&e) > 80.0, "{}", yaw_sigma_deg(&e));
+            if let Some(nav) = e.nav.as_mut() {
+                assert!(nav.yaw_unobserved(), "aligned without a compass fix");
+                nav.set_yaw_unobserved(guard);
+            }
+            // 20 s at rest: DVL reports of a few mm/s of noise at 5 Hz.
+            for k in 0..100u32 {
+                let t0 = 10.5 + 0.2 * k as f32;
+                run(&mut e, t0, t0 + 0.2, |_| None);
+                let noise = 0.004 * libm::sinf(7.3 * k as f32);
+                e.on_dvl(&DvlSample { vel_dvl_mps: [noise, -0.7 * noise, 0.3 * noise], ..dvl_with_cov(t0 + 0.2, 0.0, None) }).unwrap();
+            }
+            *out = yaw_sigma_deg(&e);
+        }
+        let [guarded, unguarded] = results;
+        assert!(guarded > 75.0, "no heading aid, yet the yaw sigma fell to {guarded} deg");
+        assert!(
+            unguarded < 0.8 * guarded,
+            "the DVL at rest reads no yaw here anyway ({unguarded} vs {guarded} deg): the test shows nothing"
+        );
+        // The first compass fixes take the yaw and clear the flag.
+        let mut e = Estimator::default();
+        run(&mut e, 0.0, 10.5, |_| None);
+        run(&mut e, 10.5, 14.0, |_| Some(deg(40.0)));
+        assert!((yaw_deg(&e) - 40.0).abs() < 1.0, "{}", yaw_deg(&e));
+        assert!(e.nav.as_ref().is_some_and(|n| !n.yaw_unobserved()));
     }
 
     /// A DVL report with its altitude outside the bottom-lock range (or unknown) is not fused,

@@ -58,6 +58,15 @@ pub struct UnitModel {
     pinv: SMatrix<f32, 3, CHANNELS>,
 }
 
+/// S0 below this many of its own 1-sigma (the readout noise through the channel model) is dark.
+/// Noise alone passes it with probability ~3e-7 per unit.
+pub const DARK_SIGMAS: f32 = 5.0;
+/// Linear polarization `P = |(S1, S2)|` below this many of its per-component 1-sigma is not
+/// measured (the DoLP test's noise floor): noise alone gives `P^2 / sigma^2` chi-square with 2
+/// degrees of freedom, above `4^2` with probability `exp(-8)` = 3.4e-4 per unit. With the head's
+/// exposure (S0 near 20,000 counts) it binds below a DoLP of 0.004, under `min_dolp`.
+pub const POLARIZED_SIGMAS: f32 = 4.0;
+
 /// Why a unit was not used.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -72,8 +81,10 @@ impl core::fmt::Display for UnitReject {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
             UnitReject::Saturated => "polarization unit rejected: a channel is saturated",
-            UnitReject::Dark => "polarization unit rejected: total intensity S0 below the minimum (too dark)",
-            UnitReject::LowDolp => "polarization unit rejected: degree of linear polarization below the minimum",
+            UnitReject::Dark => "polarization unit rejected: total intensity S0 below the minimum or within the readout noise (too dark)",
+            UnitReject::LowDolp => {
+                "polarization unit rejected: degree of linear polarization below the minimum or within the readout noise"
+            }
             UnitReject::NonFinite => "polarization unit rejected: NaN or infinite Stokes value",
         })
     }
@@ -194,22 +205,27 @@ impl UnitModel {
         if !(s0.is_finite() && s1.is_finite() && s2.is_finite()) {
             return Err(UnitReject::NonFinite);
         }
-        if s0 < min_s0 {
+        // Covariance of S0, S1, S2: pinv diag(var_y) pinv^T (diagonal, and S1-S2).
+        let (mut v00, mut v11, mut v22, mut v12) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for (k, &v) in var_y.iter().enumerate() {
+            let (r0, r1, r2) = (self.pinv[(0, k)], self.pinv[(1, k)], self.pinv[(2, k)]);
+            v00 += r0 * r0 * v;
+            v11 += r1 * r1 * v;
+            v22 += r2 * r2 * v;
+            v12 += r1 * r2 * v;
+        }
+        // Light is what stands out of the readout's own noise: in the dark (night, deep water,
+        // a head at the surface whose units see nothing) S0 and P are noise, the DoLP of noise
+        // over a near-zero S0 is anything, and three such units once gave a 40-deg-sigma fix
+        // 150 deg off (`a_dark_unit_is_dark_whatever_its_noise_says`).
+        if s0 < min_s0 || s0 * s0 < DARK_SIGMAS * DARK_SIGMAS * v00 {
             return Err(UnitReject::Dark);
         }
         let p2 = s1 * s1 + s2 * s2;
         let p = libm::sqrtf(p2);
         let dolp = p / s0;
-        if !(dolp >= min_dolp) || p2 <= 0.0 {
+        if !(dolp >= min_dolp) || p2 <= 0.0 || p2 < POLARIZED_SIGMAS * POLARIZED_SIGMAS * 0.5 * (v11 + v22) {
             return Err(UnitReject::LowDolp);
-        }
-        // Covariance of S1, S2: pinv diag(var_y) pinv^T (rows 1, 2).
-        let (mut v11, mut v22, mut v12) = (0.0f32, 0.0f32, 0.0f32);
-        for (k, &v) in var_y.iter().enumerate() {
-            let (r1, r2) = (self.pinv[(1, k)], self.pinv[(2, k)]);
-            v11 += r1 * r1 * v;
-            v22 += r2 * r2 * v;
-            v12 += r1 * r2 * v;
         }
         // AoP = 0.5 atan2(S2, S1): gradient (-S2, S1) / (2 P^2).
         let var_aop = (s2 * s2 * v11 + s1 * s1 * v22 - 2.0 * s1 * s2 * v12) / (4.0 * p2 * p2);
@@ -258,6 +274,41 @@ mod tests {
         // e-vector: cos(aop) a + sin(aop) b with a = y, b = x cross y = z.
         assert!((o.e_body - Vector3::new(0.0, libm::cosf(aop), libm::sinf(aop))).norm() < 3e-3);
         assert!(o.sigma_aop_rad > 0.0 && o.sigma_aop_rad < 0.01);
+    }
+
+    /// The head's units in the dark (their offset, read noise and quantisation; counts as the
+    /// simulator's head at the surface gave them): no draw of the noise is light. A fixed `min_s0`
+    /// alone passed about half of them (S0 of noise is as often above zero as below), with any
+    /// DoLP; three such units made a fix 150 deg off with a 40-deg sigma.
+    #[test]
+    fn a_dark_unit_is_dark_whatever_its_noise_says() {
+        let units = crate::head::polarization_units();
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let mut gauss = move || libm::sqrt(-2.0 * libm::log(uniform())) * libm::cos(core::f64::consts::TAU * uniform());
+        let (mut above_min_s0, mut draws) = (0, 0);
+        for u in units.iter().flatten() {
+            for _ in 0..20_000 {
+                let counts = [0; 4].map(|_: i16| (crate::head::POLARIZATION_OFFSET_COUNTS as f64 + 3.0 * gauss()).round() as i16);
+                let s0: f32 = (u.pinv * SMatrix::<f32, 4, 1>::from_iterator(counts.iter().map(|&c| c as f32 - 300.0)))[0];
+                above_min_s0 += usize::from(s0 >= 1e-3);
+                draws += 1;
+                let r = u.observe(&counts, 1e-3, 0.02);
+                assert!(matches!(r, Err(UnitReject::Dark | UnitReject::LowDolp)), "noise {counts:?} taken as light: {r:?}");
+            }
+        }
+        assert!(above_min_s0 > draws / 3, "the draws test what min_s0 alone let through ({above_min_s0} of {draws})");
+        // Faint but real light is still light: 200 counts a channel above the offset (S0 = 400,
+        // 2 % of the exposure target), DoLP 0.3 (P 14 of its sigmas).
+        let u = units[0].expect("unit 0");
+        let aop = 0.4f32;
+        let o = u.observe(&counts_for(&u, [400.0, 120.0 * libm::cosf(2.0 * aop), 120.0 * libm::sinf(2.0 * aop)]), 1e-3, 0.02).unwrap();
+        assert!((o.aop_rad - aop).abs() < 0.05, "{}", o.aop_rad);
     }
 
     #[test]

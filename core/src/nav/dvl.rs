@@ -131,9 +131,21 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
         // Current, 15 states: the model reads attitude, velocity and gyro bias (states 0..12),
         // not the accelerometer bias (`update_dep`); the retrodiction reads every state.
         let dep = if past.is_some() || N > BA + 3 { N } else { BA };
-        let r = self.ukf.update_dep::<3, Euclidean, _>(&z, &mut meas, dep, |dx| match &past {
+        let yaw_unobserved = self.yaw_unobserved;
+        let h = |dx: &SVector<f32, N>| match &past {
             Some(ep) => h_dvl(&ep.nom, &ep.map(dx), &mount, &gyro),
             None => h_dvl(&nom, dx, &mount, &gyro),
+        };
+        let r = self.ukf.update_dep::<3, Euclidean, _>(&z, &mut meas, dep, |dx| {
+            if yaw_unobserved {
+                // `set_yaw_unobserved`: no yaw error (the NED attitude error's down component)
+                // reaches the model.
+                let mut d = *dx;
+                d[ATT + 2] = 0.0;
+                h(&d)
+            } else {
+                h(dx)
+            }
         });
         settle(&mut self.noise_vel, meas, &r);
         self.end_update(KIND_VELOCITY, m.t_us, r, delayed)
