@@ -957,13 +957,16 @@ impl Estimator {
                 // for a whole 5-minute dive (seed 9) with a reported sigma of 0.7-1.5 deg; the
                 // filter claimed 0.33 deg, 57 % of its heading within 3 sigma. A heading-bias
                 // state would not change the estimate (the compass is the only absolute heading)
-                // but its covariance: the yaw's variance is the filter's plus the bias's. So the
-                // reported yaw sigma carries the compass's recent mean variance as a consider
-                // term (Schmidt): the filter's gains and state are untouched. (Holding the
-                // filter's own yaw variance at that level instead shortened its averaging of
+                // but its covariance: the yaw cannot be known better than the compass's bias.
+                // So the reported yaw sigma is at least the compass's recent mean sigma, a
+                // consider term (Schmidt) for that bias: the filter's gains and state are
+                // untouched. The larger of the two, not their sum: the filter's own sigma
+                // already carries the fixes' correlated model error (`HEADING_MODEL_SIGMA_RAD`);
+                // the sum reported 0.86 deg in the calm dive against a 0.31-deg error. (Holding
+                // the filter's own yaw variance at that level instead shortened its averaging of
                 // the fixes: heading RMSE +20 % calm, +12 % at 5 m/s.)
                 if let Some(v) = s.sigma_att_rad.get_mut(2) {
-                    *v = libm::sqrtf(*v * *v + self.compass_var_mean_rad2);
+                    *v = v.max(libm::sqrtf(self.compass_var_mean_rad2));
                 }
                 s
             }
