@@ -42,7 +42,7 @@ pub enum Sub {
     /// (`view_zenith_deg,rel_azimuth_deg,I,Q,U,...`, the OSOAA convention), and with
     /// --compare, how it differs from a reference field.
     Field(FieldArgs),
-    /// Print the compass's AoP departure table (`core/src/compass/departure_table.rs`) from
+    /// Print the compass's AoP departure table (`shared/core/src/compass/departure_table.rs`) from
     /// the simulator's OSOAA table.
     DepartureTable,
     /// Run the compass on a CSV of raw channel counts, one solve per row.
