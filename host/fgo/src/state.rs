@@ -70,8 +70,7 @@ impl NodeState {
     /// `x [+] d`
     pub fn retract(&self, d: &Tangent) -> Self {
         let dth = Vector3::new(d[0], d[1], d[2]);
-        let mut r = self.nav.rot_enu_flu * so3::exp(&dth);
-        orthonormalize(&mut r);
+        let r = so3::orthonormalize(&(self.nav.rot_enu_flu * so3::exp(&dth)));
         Self {
             nav: NavState {
                 rot_enu_flu: r,
@@ -98,11 +97,6 @@ impl NodeState {
     }
 }
 
-/// Re-orthonormalise a rotation matrix (keeps accumulated products on SO(3)).
-pub fn orthonormalize(r: &mut Matrix3<f64>) {
-    let q = UnitQuaternion::from_matrix(r);
-    *r = q.to_rotation_matrix().into_inner();
-}
 
 /// ENU <-> NED axis swap `T` (its own inverse).
 pub fn t_enu_ned() -> Matrix3<f64> {

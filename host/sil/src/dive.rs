@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::Result;
 use nalgebra::{Quaternion, UnitQuaternion};
 use serde::Serialize;
+use subnav_base::wrap_deg;
 use subnav_wire::{NavMode, Uplink};
 
 use super::head::{Scenario, SimHead};
@@ -190,10 +191,6 @@ impl DiveResult {
 
 /// Yaw 1-sigma (deg) below which the heading counts as converged in [`DiveResult`].
 pub const HEADING_CONVERGED_SIGMA_DEG: f64 = 5.0;
-
-fn wrap_deg(x: f64) -> f64 {
-    (x + 180.0).rem_euclid(360.0) - 180.0
-}
 
 /// Whether [`evaluate`] reads this message (runs that are not recorded keep only these).
 pub fn scored(m: &Uplink) -> bool {

@@ -28,6 +28,7 @@
 //! subnav fills.
 
 use serde_json::{Value, json};
+use subnav_core::ukf::wrap_deg;
 use subnav_wire::{NavMode, NavSolution, Uplink};
 
 use super::TimeBase;
@@ -129,9 +130,6 @@ fn f(x: f32) -> f64 {
 pub fn yaw_rad(att_nb_wxyz: [f32; 4]) -> f64 {
     let [w, x, y, z] = att_nb_wxyz.map(f64::from);
     (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
-}
-fn wrap_deg(x: f64) -> f64 {
-    (x + 180.0).rem_euclid(360.0) - 180.0
 }
 /// A finite number, or JSON null (a NaN "no value yet"), which [`omit_unknown`] then takes out.
 fn num(x: f64) -> Value {
