@@ -93,10 +93,6 @@ fn run_pvlib(cases: &[Case]) -> Vec<[f64; 3]> {
     rows
 }
 
-fn wrap180(d: f64) -> f64 {
-    (d + 180.0).rem_euclid(360.0) - 180.0
-}
-
 #[test]
 fn ephemeris_matches_pvlib_spa_python() {
     let cases = cases();
@@ -117,7 +113,7 @@ fn ephemeris_matches_pvlib_spa_python() {
         let az = s.azimuth_rad as f64 / deg;
         let d_app = (app - p[0]).abs();
         let d_zen = (zen - p[1]).abs();
-        let d_az = wrap180(az - p[2]).abs();
+        let d_az = subnav_base::wrap_deg(az - p[2]).abs();
         max_app = max_app.max(d_app);
         max_zen = max_zen.max(d_zen);
         if d_az > max_az {

@@ -3,6 +3,8 @@
 //! of GTSAM's `so3::DexpFunctor` (right Jacobian, tangent perturbations on the right:
 //! `R * Exp(delta)`), because the preintegration is checked against GTSAM to 1e-9.
 //! nalgebra's `Rotation3` has exp/log but no right Jacobian or its derivative, hence this file.
+//! [`orthonormalize`] is the one re-orthonormalisation of the host's rotation matrices (factor
+//! graph and under-ice odometry).
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -153,6 +155,23 @@ pub fn apply_inv_dexp(omega: &Vector3<f64>, v: &Vector3<f64>) -> InvDexp {
     let c = inv * v;
     let h = apply_dexp_h1(&e, omega, a, b, &c);
     InvDexp { value: c, d_omega: -inv * h, d_v: inv, rot: e.expmap(), dexp }
+}
+
+/// The nearest rotation to `r` (polar decomposition through the SVD, `U Vᵀ`): keeps a matrix
+/// built from long products of rotations on SO(3). Why the SVD: its polar factor is the closest
+/// rotation in the Frobenius norm in one step, whereas a round trip through a quaternion
+/// (nalgebra's `from_matrix`, an iterative fit stopped at machine epsilon) only approximates it.
+/// A matrix the SVD cannot make a proper rotation of (no convergence, a reflection) is returned
+/// as it is.
+pub fn orthonormalize(r: &Matrix3<f64>) -> Matrix3<f64> {
+    let svd = r.svd(true, true);
+    match (svd.u, svd.v_t) {
+        (Some(u), Some(vt)) => {
+            let m = u * vt;
+            if m.determinant() > 0.0 { m } else { *r }
+        }
+        _ => *r,
+    }
 }
 
 #[cfg(test)]

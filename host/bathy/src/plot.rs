@@ -8,35 +8,8 @@ use super::{NavSample, V2};
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
 use std::path::Path;
-use std::sync::OnceLock;
 
-fn font_available() -> bool {
-    static OK: OnceLock<bool> = OnceLock::new();
-    *OK.get_or_init(|| {
-        let mut paths: Vec<String> = std::env::var("SUBNAV_FONT").into_iter().collect();
-        paths.extend(
-            [
-                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/TTF/DejaVuSans.ttf",
-                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-                "/Library/Fonts/Arial.ttf",
-                "C:\\Windows\\Fonts\\arial.ttf",
-            ]
-            .iter()
-            .map(|s| s.to_string()),
-        );
-        for p in paths {
-            if let Ok(bytes) = std::fs::read(&p) {
-                let leaked: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                if plotters::style::register_font("sans-serif", FontStyle::Normal, leaked).is_ok() {
-                    return true;
-                }
-            }
-        }
-        false
-    })
-}
+use subnav_base::plot::font_ok;
 
 fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("plotting: {e:?}")
@@ -54,7 +27,7 @@ fn colour(t: f64) -> RGBColor {
 
 /// Side-by-side maps (east right, north up), each a grid plus tracks (label, colour, poses).
 pub fn maps(path: &Path, panels: &[(&str, &Grid, Vec<(&str, RGBColor, &[NavSample])>)]) -> Result<()> {
-    let text = font_available();
+    let text = font_ok();
     let (w, h) = (720 * panels.len() as u32, 760);
     let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
@@ -107,7 +80,7 @@ pub fn maps(path: &Path, panels: &[(&str, &Grid, Vec<(&str, RGBColor, &[NavSampl
 
 /// One histogram panel per error set (label, errors in m), shared bins.
 pub fn error_histograms(path: &Path, sets: &[(&str, &[f64])]) -> Result<()> {
-    let text = font_available();
+    let text = font_ok();
     let root = BitMapBackend::new(path, (520 * sets.len() as u32, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let areas = root.split_evenly((1, sets.len()));
@@ -149,7 +122,7 @@ pub fn error_histograms(path: &Path, sets: &[(&str, &[f64])]) -> Result<()> {
 
 /// Navigation error against time for several offset sets.
 pub fn nav_error_over_time(path: &Path, t_s: &[f64], series: &[(&str, RGBColor, Vec<f64>)], keys_t: &[f64]) -> Result<()> {
-    let text = font_available();
+    let text = font_ok();
     let root = BitMapBackend::new(path, (1000, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let tmax = t_s.last().copied().unwrap_or(1.0).max(1.0);

@@ -32,7 +32,7 @@ fn report_on_a_simulated_dive_writes_valid_figures_and_pages() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let stats = &v["report"]["stats"];
     assert!(stats["scored"].as_u64().unwrap() > 800, "{stats}"); // 10 Hz over 90 s
-    let h = stats["horizontal_rmse_m"].as_f64().unwrap();
+    let h = stats["horizontal_rms_err_m"].as_f64().unwrap();
     assert!(h > 0.0 && h < 5.0, "horizontal RMSE {h} m on a 90 s DVL-aided dive");
     let hd = stats["heading_rmse_deg"].as_f64().unwrap();
     assert!(hd > 0.0 && hd < 5.0, "heading RMSE {hd} deg");
@@ -49,7 +49,7 @@ fn report_on_a_simulated_dive_writes_valid_figures_and_pages() {
         assert!(md.contains(&format!("]({name}.png)")), "report.md does not link {name}");
         assert!(html.contains(&format!("src=\"{name}.png\"")), "report.html does not link {name}");
     }
-    assert!(md.contains("horizontal RMSE"));
+    assert!(md.contains("horizontal RMS |"));
     // The injected NaN depth samples (60 s, 61 s) show up as faults in the recording.
     assert!(md.contains("2 fault messages"), "{md}");
 }

@@ -82,7 +82,7 @@ fn run_without_a_scenario_runs_the_closed_loop_and_writes_the_report() {
         assert!(dir.path().join(f).exists(), "{f} missing; stdout:\n{text}");
     }
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
-    assert!(md.contains("Map in the loop: ") && md.contains("horizontal RMSE"), "{md}");
+    assert!(md.contains("Map in the loop: ") && md.contains("horizontal RMS |"), "{md}");
     // The open-loop switch needs a camera: a scenario without one is refused with a reason.
     let sc = dir.path().join("plain.json");
     assert!(subnav().args(["sim", "--duration-s", "30", "--out"]).arg(&sc).status().unwrap().success());

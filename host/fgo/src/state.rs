@@ -5,7 +5,7 @@
 //! Tangent vector of a node (15): `[d_theta (body, right perturbation), d_pos_enu, d_vel_enu,
 //! d_bias_acc, d_bias_gyro]`. Retraction: `R Exp(d_theta)`, the rest additive.
 //!
-//! Conversion to the project's NED/FRD convention (shared/src/wire/messages.rs):
+//! Conversion to the project's NED/FRD convention (shared/wire/src/messages.rs):
 //! `p_ned = T p_enu`, `v_ned = T v_enu` with `T = [[0,1,0],[1,0,0],[0,0,-1]]` (T = T^T = T^-1);
 //! body FLU -> FRD is `F = diag(1,-1,-1)`; attitude `R_ned_frd = T R_enu_flu F`; IMU samples
 //! convert with `F` (`acc_flu = F acc_frd`, `gyro_flu = F gyro_frd`).
@@ -70,8 +70,7 @@ impl NodeState {
     /// `x [+] d`
     pub fn retract(&self, d: &Tangent) -> Self {
         let dth = Vector3::new(d[0], d[1], d[2]);
-        let mut r = self.nav.rot_enu_flu * so3::exp(&dth);
-        orthonormalize(&mut r);
+        let r = so3::orthonormalize(&(self.nav.rot_enu_flu * so3::exp(&dth)));
         Self {
             nav: NavState {
                 rot_enu_flu: r,
@@ -98,11 +97,6 @@ impl NodeState {
     }
 }
 
-/// Re-orthonormalise a rotation matrix (keeps accumulated products on SO(3)).
-pub fn orthonormalize(r: &mut Matrix3<f64>) {
-    let q = UnitQuaternion::from_matrix(r);
-    *r = q.to_rotation_matrix().into_inner();
-}
 
 /// ENU <-> NED axis swap `T` (its own inverse).
 pub fn t_enu_ned() -> Matrix3<f64> {

@@ -284,7 +284,7 @@ fn refine_two_frame(
         if !step.iter().all(|v| v.is_finite()) {
             return None;
         }
-        r = crate::state::orthonormalize(&(r * so3::exp(&Vector3::new(step[0], step[1], step[2]))));
+        r = so3::orthonormalize(&(r * so3::exp(&Vector3::new(step[0], step[1], step[2]))));
         t += Vector3::new(step[3], step[4], step[5]);
         for (i, p) in pts.iter_mut().enumerate() {
             *p += Vector3::new(step[6 + 3 * i], step[7 + 3 * i], step[8 + 3 * i]);

@@ -121,7 +121,7 @@ impl FilterState {
     /// Apply an error-state correction to the nominal states.
     pub fn inject(&mut self, dx: &DVector<f64>) {
         let v3 = |o: usize| Vector3::new(dx[o], dx[o + 1], dx[o + 2]);
-        self.imu.rot = orthonormalize(&(self.imu.rot * subnav_base::so3::exp(&v3(TH))));
+        self.imu.rot = subnav_base::so3::orthonormalize(&(self.imu.rot * subnav_base::so3::exp(&v3(TH))));
         self.imu.vel_w_mps += v3(VEL);
         self.imu.pos_w_m += v3(POS);
         self.imu.bias_gyro_radps += v3(BG);
@@ -131,7 +131,7 @@ impl FilterState {
         self.imu.sonar_bias_mps += dx[SONAR_BIAS];
         for (i, c) in self.clones.iter_mut().enumerate() {
             let o = Self::clone_offset(i);
-            c.rot = orthonormalize(&(c.rot * subnav_base::so3::exp(&v3(o))));
+            c.rot = subnav_base::so3::orthonormalize(&(c.rot * subnav_base::so3::exp(&v3(o))));
             c.pos_w_m += v3(o + 3);
         }
     }
@@ -212,14 +212,3 @@ pub fn symmetrize(p: &mut DMatrix<f64>) {
     *p *= 0.5;
 }
 
-/// Nearest rotation (polar decomposition through SVD) to keep `R` orthonormal over long runs.
-pub fn orthonormalize(r: &Matrix3<f64>) -> Matrix3<f64> {
-    let svd = r.svd(true, true);
-    match (svd.u, svd.v_t) {
-        (Some(u), Some(vt)) => {
-            let m = u * vt;
-            if m.determinant() > 0.0 { m } else { *r }
-        }
-        _ => *r,
-    }
-}

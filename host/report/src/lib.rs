@@ -74,19 +74,9 @@ pub struct FaultPoint {
     pub count: u32,
 }
 
-/// Error statistics (only when truth exists).
-#[derive(Debug, Clone, Copy, Default, Serialize)]
-pub struct ErrorStats {
-    pub scored: usize,
-    pub horizontal_rmse_m: f64,
-    pub horizontal_max_m: f64,
-    pub horizontal_final_m: f64,
-    pub depth_rmse_m: f64,
-    pub heading_rmse_deg: f64,
-    pub heading_max_deg: f64,
-    /// Fraction of scored solutions whose error is within +-3 sigma, per axis N, E, D, yaw.
-    pub within_3sigma: [f64; 4],
-}
+/// Error statistics (only when truth exists): the run's one scoring, `subnav_link::score`
+/// (aided solutions; heading over the converged ones), the figures `subnav run` prints.
+pub use subnav_link::score::Score as ErrorStats;
 
 /// A loop closure the head accepted: where the map put the vehicle at that instant and where
 /// the head's estimate was.
@@ -189,44 +179,23 @@ impl ReportData {
                 });
             }
         }
-        d.stats = d.error_stats();
+        d.stats = Self::score(s, &d.truth);
         d
     }
 
-    fn error_stats(&self) -> Option<ErrorStats> {
-        if self.errors.is_empty() {
-            return None;
-        }
-        let n = self.errors.len() as f64;
-        let h: Vec<f64> = self.errors.iter().map(|e| e.pos_err_ned_m[0].hypot(e.pos_err_ned_m[1])).collect();
-        let mut within = [0.0; 4];
-        // errors and nav share order: errors are the nav points inside the truth's span.
-        let mut j = 0;
-        for e in &self.errors {
-            while self.nav.get(j).is_some_and(|p| p.t_s < e.t_s) {
-                j += 1;
-            }
-            if let Some(p) = self.nav.get(j) {
-                for k in 0..3 {
-                    if e.pos_err_ned_m[k].abs() <= 3.0 * p.sigma_pos_m[k] {
-                        within[k] += 1.0;
-                    }
-                }
-                if e.yaw_err_rad.abs() <= 3.0 * p.sigma_yaw_rad {
-                    within[3] += 1.0;
-                }
+    /// The scoring of `subnav run` (`subnav_link::score`) over the aided solutions inside the
+    /// truth's span, the truth interpolated at each solution's time.
+    fn score(s: &Session, truth: &[TruthRow]) -> Option<ErrorStats> {
+        let mut scorer = subnav_link::score::Scorer::new();
+        for m in &s.messages {
+            if let Uplink::Nav(n) = &m.item
+                && let Some((pos_ned_m, yaw_rad)) = truth_at(truth, n.t_us as f64 * 1e-6)
+            {
+                scorer.add(n, &subnav_link::score::Truth { pos_ned_m, yaw_rad });
             }
         }
-        Some(ErrorStats {
-            scored: self.errors.len(),
-            horizontal_rmse_m: (h.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-            horizontal_max_m: h.iter().copied().fold(0.0, f64::max),
-            horizontal_final_m: h.last().copied().unwrap_or(0.0),
-            depth_rmse_m: (self.errors.iter().map(|e| e.pos_err_ned_m[2].powi(2)).sum::<f64>() / n).sqrt(),
-            heading_rmse_deg: (self.errors.iter().map(|e| e.yaw_err_rad.powi(2)).sum::<f64>() / n).sqrt().to_degrees(),
-            heading_max_deg: self.errors.iter().map(|e| e.yaw_err_rad.abs()).fold(0.0, f64::max).to_degrees(),
-            within_3sigma: within.map(|w| w / n),
-        })
+        let score = scorer.score();
+        (score.scored > 0).then_some(score)
     }
 }
 
@@ -299,22 +268,27 @@ pub fn write(d: &ReportData, dir: &Path, images: ImageFormat, title: &str, mut p
     }
     match &d.stats {
         Some(s) => {
-            let _ = writeln!(md, "## Errors against truth ({} solutions scored)\n", s.scored);
-            let _ = writeln!(md, "| metric | value |\n|---|---:|");
-            let _ = writeln!(md, "| horizontal RMSE | {:.3} m |", s.horizontal_rmse_m);
-            let _ = writeln!(md, "| horizontal max | {:.3} m |", s.horizontal_max_m);
-            let _ = writeln!(md, "| horizontal final | {:.3} m |", s.horizontal_final_m);
-            let _ = writeln!(md, "| depth RMSE | {:.3} m |", s.depth_rmse_m);
-            let _ = writeln!(md, "| heading RMSE | {:.3} deg |", s.heading_rmse_deg);
-            let _ = writeln!(md, "| heading max | {:.3} deg |", s.heading_max_deg);
+            let at = |t: Option<f64>| t.map_or("-".to_string(), |t| format!("{t:.1} s"));
+            let _ = writeln!(md, "## Errors against truth ({} aided solutions scored)\n", s.scored);
             let _ = writeln!(
                 md,
-                "| within 3 sigma (N / E / D / yaw) | {:.1} / {:.1} / {:.1} / {:.1} % |\n",
-                100.0 * s.within_3sigma[0],
-                100.0 * s.within_3sigma[1],
-                100.0 * s.within_3sigma[2],
-                100.0 * s.within_3sigma[3]
+                "Scored as `subnav run` scores (`subnav_link::score`): the {} aided solutions (from {}), the alignment before them left out; the heading over the {} of them whose yaw 1-sigma is at most {} deg (converged, from {}). The figures below show every initialised solution.\n",
+                s.scored,
+                at(s.first_aided_s),
+                s.heading_converged_epochs,
+                subnav_link::score::HEADING_CONVERGED_SIGMA_DEG,
+                at(s.heading_converged_s)
             );
+            let _ = writeln!(md, "| metric | value |\n|---|---:|");
+            let _ = writeln!(md, "| horizontal RMS | {:.2} m |", s.horizontal_rms_err_m);
+            let _ = writeln!(md, "| horizontal max | {:.2} m |", s.horizontal_max_err_m);
+            let _ = writeln!(md, "| horizontal final | {:.2} m |", s.horizontal_final_err_m);
+            let _ = writeln!(md, "| horizontal within 3 sigma (N and E) | {:.1} % |", 100.0 * s.within_3_sigma);
+            let _ = writeln!(md, "| depth RMSE | {:.3} m |", s.depth_rmse_m);
+            let _ = writeln!(md, "| heading RMSE (converged) | {:.3} deg |", s.heading_rmse_deg);
+            let _ = writeln!(md, "| heading max (converged) | {:.3} deg |", s.heading_max_abs_err_deg);
+            let _ = writeln!(md, "| heading within 3 sigma (converged) | {:.1} % |", 100.0 * s.heading_within_3_sigma);
+            let _ = writeln!(md, "| heading RMSE (all aided) | {:.2} deg |\n", s.heading_rmse_all_aided_deg);
         }
         None => {
             md.push_str("No truth: error statistics need a simulated dive's truth (`--truth`, or a truth stream in the recording).\n\n")

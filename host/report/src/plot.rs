@@ -9,7 +9,6 @@
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 use anyhow::{Context, Result, anyhow};
 use plotters::coord::Shift;
@@ -32,28 +31,7 @@ pub const FIGURES: [(&str, &str, Draw); 5] = [
     ("faults", "Sensor and link faults over time (one row per source/kind).", faults),
 ];
 
-/// Registers a TrueType font for the figures' text (false: none found, draw without text).
-pub fn font_ok() -> bool {
-    static OK: OnceLock<bool> = OnceLock::new();
-    *OK.get_or_init(|| {
-        let mut paths: Vec<String> = std::env::var("SUBNAV_FONT").into_iter().collect();
-        paths.extend(
-            [
-                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/TTF/DejaVuSans.ttf",
-                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-                "/Library/Fonts/Arial.ttf",
-            ]
-            .map(String::from),
-        );
-        paths.into_iter().any(|p| {
-            std::fs::read(&p).is_ok_and(|bytes| {
-                plotters::style::register_font("sans-serif", FontStyle::Normal, Box::leak(bytes.into_boxed_slice())).is_ok()
-            })
-        })
-    })
-}
+pub use subnav_base::plot::font_ok;
 
 fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow!("plotting: {e}")

@@ -846,7 +846,7 @@ impl HeadFigures {
             .filter_map(|m| if let Uplink::Compass(c) = m { c.heading_rad.map(|h| (c.t_us, h)) } else { None })
             .map(|(t, h)| {
                 let d = f64::from(h).to_degrees() - traj.at(t as f64 * 1e-6).yaw_rad.to_degrees();
-                ((d + 180.0).rem_euclid(360.0) - 180.0).abs()
+                subnav_base::wrap_deg(d).abs()
             })
             .collect();
         err.sort_by(f64::total_cmp);

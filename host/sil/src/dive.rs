@@ -6,8 +6,10 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::Result;
-use nalgebra::{Quaternion, UnitQuaternion};
 use serde::Serialize;
+use subnav_base::wrap_deg;
+use subnav_link::record::session::TruthRow;
+use subnav_link::score::{self, Scorer, Truth};
 use subnav_wire::{NavMode, Uplink};
 
 use super::head::{Scenario, SimHead};
@@ -188,11 +190,13 @@ impl DiveResult {
     }
 }
 
-/// Yaw 1-sigma (deg) below which the heading counts as converged in [`DiveResult`].
-pub const HEADING_CONVERGED_SIGMA_DEG: f64 = 5.0;
+/// Yaw 1-sigma (deg) at or below which the heading counts as converged in [`DiveResult`].
+pub use subnav_link::score::HEADING_CONVERGED_SIGMA_DEG;
 
-fn wrap_deg(x: f64) -> f64 {
-    (x + 180.0).rem_euclid(360.0) - 180.0
+/// The scenario's truth at the time of validity of `n`, for [`score`].
+pub fn truth_at(traj: &subnav_base::trajectory::Trajectory, n: &subnav_wire::NavSolution) -> Truth {
+    let tr = traj.at(n.t_us as f64 * 1e-6);
+    Truth { pos_ned_m: [tr.pos_ned_m.x, tr.pos_ned_m.y, tr.pos_ned_m.z], yaw_rad: tr.yaw_rad }
 }
 
 /// Whether [`evaluate`] reads this message (runs that are not recorded keep only these).
@@ -330,19 +334,18 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     r.with_map(map.map(|m| m.report()), sc).with_recordings(&recordings)
 }
 
-/// The truth of a dive as CSV (`t_s,n_m,e_m,d_m,yaw_rad`, the format `subnav report --truth`
-/// reads), every `step_s`.
-pub fn truth_csv(sc: &Scenario, step_s: f64) -> String {
+/// The truth of a dive every `step_s` (yaw wrapped to (-pi, pi]): what `subnav run` writes
+/// as CSV (`subnav_link::record::session::truth_csv`) and gives its report.
+pub fn truth_rows(sc: &Scenario, step_s: f64) -> Vec<TruthRow> {
     let traj = sc.trajectory();
-    let mut out = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
     let n = (sc.duration_s / step_s).floor() as u64;
-    for k in 0..=n {
-        let t = k as f64 * step_s;
-        let tr = traj.at(t);
-        let yaw = subnav_base::wrap_pi(tr.yaw_rad);
-        out.push_str(&format!("{t:.3},{:.4},{:.4},{:.4},{yaw:.6}\n", tr.pos_ned_m.x, tr.pos_ned_m.y, tr.pos_ned_m.z));
-    }
-    out
+    (0..=n)
+        .map(|k| {
+            let t = k as f64 * step_s;
+            let tr = traj.at(t);
+            TruthRow { t_s: t, pos_ned_m: [tr.pos_ned_m.x, tr.pos_ned_m.y, tr.pos_ned_m.z], yaw_rad: subnav_base::wrap_pi(tr.yaw_rad) }
+        })
+        .collect()
 }
 
 /// Error statistics of a dive's telemetry `msgs` against the scenario's truth.
@@ -382,10 +385,8 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
         consistency: Vec::new(),
     };
     let mut last_nav_s: Option<f64> = None;
-    let (mut sh, mut sp, mut sd, mut inside) = (0.0, 0.0, 0.0, 0usize);
-    let (mut sh_conv, mut n_conv, mut h_inside) = (0.0, 0usize, 0usize);
+    let mut scorer = Scorer::new();
     let (mut sc2, mut sr, mut nr) = (0.0, 0.0, 0usize);
-    let mut last_aided_s = 0.0f64;
     for m in msgs {
         match m {
             Uplink::Nav(n) => {
@@ -397,38 +398,7 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
                 last_nav_s = Some(t);
                 let values = n.pos_ned_m.iter().chain(&n.vel_ned_mps).chain(&n.att_nb_wxyz);
                 r.nonfinite_values += values.filter(|v| !v.is_finite()).count();
-                if n.mode != NavMode::Aided {
-                    continue;
-                }
-                let t = n.t_us as f64 * 1e-6;
-                r.first_aided_s.get_or_insert(t);
-                let truth = traj.at(t);
-                let [w, x, y, z] = n.att_nb_wxyz.map(f64::from);
-                let q = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
-                let yaw = q.euler_angles().2.to_degrees();
-                let eh = wrap_deg(yaw - truth.yaw_rad.to_degrees());
-                let (en, ee) = (n.pos_ned_m[0] as f64 - truth.pos_ned_m.x, n.pos_ned_m[1] as f64 - truth.pos_ned_m.y);
-                let ed = n.pos_ned_m[2] as f64 - truth.pos_ned_m.z;
-                r.aided_messages += 1;
-                sh += eh * eh;
-                sp += en * en + ee * ee;
-                sd += ed * ed;
-                let sigma_yaw_deg = (n.sigma_att_rad[2] as f64).to_degrees();
-                if sigma_yaw_deg <= HEADING_CONVERGED_SIGMA_DEG {
-                    r.heading_converged_s.get_or_insert(t);
-                    sh_conv += eh * eh;
-                    n_conv += 1;
-                    r.heading_max_abs_err_deg = r.heading_max_abs_err_deg.max(eh.abs());
-                    if eh.abs() <= 3.0 * sigma_yaw_deg {
-                        h_inside += 1;
-                    }
-                }
-                r.horizontal_final_err_m = (en * en + ee * ee).sqrt();
-                r.horizontal_max_err_m = r.horizontal_max_err_m.max(r.horizontal_final_err_m);
-                last_aided_s = t;
-                if en.abs() <= 3.0 * n.sigma_pos_m[0] as f64 && ee.abs() <= 3.0 * n.sigma_pos_m[1] as f64 {
-                    inside += 1;
-                }
+                scorer.add(n, &truth_at(&traj, n));
             }
             Uplink::Raw(subnav_wire::RawSample::Depth(d)) => {
                 let e = d.depth_m as f64 - traj.at(d.t_us as f64 * 1e-6).pos_ned_m.z;
@@ -460,22 +430,21 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
     if nr > 0 {
         r.raw_depth_rmse_m = (sr / nr as f64).sqrt();
     }
-    if r.aided_messages > 0 {
-        let n = r.aided_messages as f64;
-        r.heading_rmse_all_aided_deg = (sh / n).sqrt();
-        r.horizontal_rms_err_m = (sp / n).sqrt();
-        r.depth_rmse_m = (sd / n).sqrt();
-        r.within_3_sigma = inside as f64 / n;
-    }
+    let s = scorer.score();
+    r.aided_messages = s.scored;
+    (r.first_aided_s, r.heading_converged_s) = (s.first_aided_s, s.heading_converged_s);
+    (r.heading_rmse_deg, r.heading_max_abs_err_deg, r.heading_within_3_sigma) =
+        (s.heading_rmse_deg, s.heading_max_abs_err_deg, s.heading_within_3_sigma);
+    r.heading_rmse_all_aided_deg = s.heading_rmse_all_aided_deg;
+    (r.horizontal_rms_err_m, r.horizontal_final_err_m, r.horizontal_max_err_m) =
+        (s.horizontal_rms_err_m, s.horizontal_final_err_m, s.horizontal_max_err_m);
+    (r.depth_rmse_m, r.within_3_sigma) = (s.depth_rmse_m, s.within_3_sigma);
+    let last_aided_s = s.last_aided_s.unwrap_or(0.0);
     // Distance: the truth's horizontal speed integrated at 0.1 s.
     let steps = (last_aided_s / 0.1).floor() as u64;
     r.distance_m = (0..steps).map(|k| traj.at(k as f64 * 0.1 + 0.05).vel_ned_mps.xy().norm() * 0.1).sum();
     if r.distance_m > 0.0 {
         r.final_err_pct_of_distance = 100.0 * r.horizontal_final_err_m / r.distance_m;
-    }
-    if n_conv > 0 {
-        r.heading_rmse_deg = (sh_conv / n_conv as f64).sqrt();
-        r.heading_within_3_sigma = h_inside as f64 / n_conv as f64;
     }
     r.fault_classes = fault_classes(sc, msgs, r.longest_nav_gap_s);
     if let Some(h) = msgs.iter().rev().find_map(|m| if let Uplink::Health(h) = m { Some(h) } else { None }) {
@@ -501,17 +470,14 @@ fn consistency(sc: &Scenario, msgs: &[Uplink]) -> Vec<Sample> {
         .filter_map(|m| if let Uplink::Nav(n) = m { Some(n) } else { None })
         .filter(|n| n.mode == NavMode::Aided)
         .map(|n| {
-            let t = n.t_us as f64 * 1e-6;
-            let truth = traj.at(t);
-            let (en, ee) = (f64::from(n.pos_ned_m[0]) - truth.pos_ned_m.x, f64::from(n.pos_ned_m[1]) - truth.pos_ned_m.y);
-            let pos_ok = en.abs() <= 3.0 * f64::from(n.sigma_pos_m[0]) && ee.abs() <= 3.0 * f64::from(n.sigma_pos_m[1]);
-            let [w, x, y, z] = n.att_nb_wxyz.map(f64::from);
-            let yaw = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)).euler_angles().2.to_degrees();
-            let eh = wrap_deg(yaw - truth.yaw_rad.to_degrees());
-            let sigma_yaw_deg = f64::from(n.sigma_att_rad[2]).to_degrees();
-            let heading_ok = sigma_yaw_deg > HEADING_CONVERGED_SIGMA_DEG || eh.abs() <= 3.0 * sigma_yaw_deg;
-            let [sn, se] = [n.sigma_pos_m[0], n.sigma_pos_m[1]].map(f64::from);
-            Sample { t, ok: pos_ok && heading_ok, sigma_h_m: (sn * sn + se * se).sqrt(), sigma_yaw_deg }
+            let e = score::epoch(n, &truth_at(&traj, n));
+            let heading_ok = !e.heading_converged || e.heading_within_3_sigma;
+            Sample {
+                t: e.t_s,
+                ok: e.horizontal_within_3_sigma && heading_ok,
+                sigma_h_m: e.sigma_horizontal_m,
+                sigma_yaw_deg: e.sigma_heading_deg,
+            }
         })
         .collect()
 }

@@ -1,27 +1,19 @@
 //! `subnav compass`: run the polarization compass (`subnav_core::compass`, the firmware's code)
 //! on a simulated sky (heading Monte Carlo, sun-track geolocation) or on a CSV of raw counts.
 //!
-//! CSV (`compass csv FILE`): a header line, then one solve per row:
-//! `time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2,u0_c0,u0_c1,u0_c2,u0_c3,u1_c0,...`
-//! `time` is POSIX microseconds or RFC 3339; empty lat/lon mean "position unknown" (the sun is
-//! still measured, the reason is `NoTime`). The units are the default head of the simulator
-//! (`host::compass::sim::default_units`: a ring of N = (columns - 6) / 4 units, nominal
-//! calibration). `compass simulate --emit-csv FILE` writes such a file (with a `true_yaw_deg` column).
+//! CSV (`compass csv FILE`): the raw-counts format of `subnav_compass::raw_csv`, one solve per
+//! row; `compass simulate --emit-csv FILE` writes such a file (with a `true_yaw_deg` column).
 
-use std::io::Write;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
-use nalgebra::Rotation3;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use serde_json::json;
-use subnav_core::compass::{self, CHANNELS, CompassInput};
-use subnav_core::ephemeris::{self, Observer};
+use subnav_core::compass::{self, CompassInput};
+use subnav_core::ephemeris;
 
 use super::Format;
 use subnav_base::sky as sim;
-use subnav_compass::{geoloc, montecarlo};
+use subnav_compass::{geoloc, montecarlo, raw_csv};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -42,7 +34,7 @@ pub enum Sub {
     /// (`view_zenith_deg,rel_azimuth_deg,I,Q,U,...`, the OSOAA convention), and with
     /// --compare, how it differs from a reference field.
     Field(FieldArgs),
-    /// Print the compass's AoP departure table (`core/src/compass/departure_table.rs`) from
+    /// Print the compass's AoP departure table (`shared/core/src/compass/departure_table.rs`) from
     /// the simulator's OSOAA table.
     DepartureTable,
     /// Run the compass on a CSV of raw channel counts, one solve per row.
@@ -326,87 +318,13 @@ fn envelope(args: &EnvelopeArgs, format: Format) -> Result<ExitCode> {
         std::fs::write(p, &table).with_context(|| format!("writing the table {}", p.display()))?;
     }
     if let Some(p) = &args.png {
-        envelope_png(p, &cells, &cfg).with_context(|| format!("writing the figure {}", p.display()))?;
+        subnav_compass::plot::envelope_png(p, &cells, &cfg).with_context(|| format!("writing the figure {}", p.display()))?;
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&cells)?),
         Format::Text => print!("{table}"),
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// Two rows of panels, one column per sunlit sky and turbidity: heading RMSE (log scale) and
-/// the fraction within 2 reported sigma against wind, one line per depth. Skies without a
-/// fix anywhere (overcast, twilight) are in the table only.
-fn envelope_png(
-    path: &std::path::Path,
-    cells: &[subnav_compass::envelope::Cell],
-    cfg: &subnav_compass::envelope::EnvelopeConfig,
-) -> Result<()> {
-    use plotters::prelude::*;
-    let text = subnav_report::plot::font_ok();
-    let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("plotting: {e}");
-    let mut panels: Vec<(String, f64)> = Vec::new();
-    for c in cells.iter().filter(|c| c.fixes > 0) {
-        let key = (c.sky.clone(), c.turbidity);
-        if !panels.contains(&key) {
-            panels.push(key);
-        }
-    }
-    if panels.is_empty() {
-        bail!("no cell of the envelope has a fix: nothing to draw");
-    }
-    let w_max = cfg.winds_mps.iter().copied().fold(0.0, f64::max).max(1.0);
-    let cols = [RGBColor(31, 119, 180), RGBColor(255, 127, 14), RGBColor(44, 160, 44), RGBColor(214, 39, 40), RGBColor(148, 103, 189)];
-    let root = BitMapBackend::new(path, (420 * panels.len() as u32, 760)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let areas = root.split_evenly((2, panels.len()));
-    for (j, (sky, turb)) in panels.iter().enumerate() {
-        for row in 0..2 {
-            let area = &areas[row * panels.len() + j];
-            let mut b = ChartBuilder::on(area);
-            b.margin(10).x_label_area_size(if text { 35 } else { 0 }).y_label_area_size(if text { 55 } else { 0 });
-            if text {
-                b.caption(format!("{sky}, turbidity {turb}"), ("sans-serif", 18));
-            }
-            let series = |d: f64| -> Vec<(f64, f64)> {
-                cells
-                    .iter()
-                    .filter(|c| &c.sky == sky && c.turbidity == *turb && c.depth_m == d && c.fixes > 0)
-                    .map(|c| (c.wind_mps, if row == 0 { c.rmse_deg.max(1e-3) } else { 100.0 * c.within_2_sigma }))
-                    .collect()
-            };
-            if row == 0 {
-                let mut ch = b.build_cartesian_2d(0.0..w_max, (0.02f64..20.0).log_scale()).map_err(|e| err(&e))?;
-                if text {
-                    ch.configure_mesh().x_desc("wind (m/s)").y_desc("heading RMSE (deg)").draw().map_err(|e| err(&e))?;
-                }
-                for (k, d) in cfg.depths_m.iter().enumerate() {
-                    let col = cols[k % cols.len()];
-                    let s = ch.draw_series(LineSeries::new(series(*d), col.stroke_width(2))).map_err(|e| err(&e))?;
-                    if text {
-                        s.label(format!("{d} m")).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2)));
-                    }
-                }
-                if text {
-                    ch.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(|e| err(&e))?;
-                }
-            } else {
-                let mut ch = b.build_cartesian_2d(0.0..w_max, 50.0f64..100.0).map_err(|e| err(&e))?;
-                if text {
-                    ch.configure_mesh().x_desc("wind (m/s)").y_desc("% within 2 reported sigma").draw().map_err(|e| err(&e))?;
-                }
-                ch.draw_series(LineSeries::new([(0.0, 95.4), (w_max, 95.4)], BLACK.mix(0.4))).map_err(|e| err(&e))?;
-                for (k, d) in cfg.depths_m.iter().enumerate() {
-                    let col = cols[k % cols.len()];
-                    ch.draw_series(LineSeries::new(series(*d).into_iter().map(|(x, y)| (x, y.max(50.0))), col.stroke_width(2)))
-                        .map_err(|e| err(&e))?;
-                }
-            }
-        }
-    }
-    root.present().map_err(|e| err(&e))?;
-    Ok(())
 }
 
 /// Units of the simulated head when --units is not given (the head itself has
@@ -589,7 +507,7 @@ fn simulate(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
         bail!("--emit-csv writes flat-surface draws: leave out --wind-mps and --sky");
     }
     if let Some(path) = &args.emit_csv {
-        emit_csv(&cfg, path).with_context(|| format!("writing {}", path.display()))?;
+        subnav_compass::raw_csv::write(&cfg, path).with_context(|| format!("writing {}", path.display()))?;
     }
     let r = montecarlo::run(&cfg);
     match format {
@@ -673,114 +591,18 @@ fn geolocate(args: &GeolocateArgs, format: Format) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes simulated draws as a raw-counts CSV (same draws as the Monte Carlo would make with
-/// another seed stream; the `true_yaw_deg` column is the truth).
-fn emit_csv(cfg: &montecarlo::McConfig, path: &std::path::Path) -> Result<()> {
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xC5F);
-    let units = sim::default_units(cfg.units);
-    let mut f = std::io::BufWriter::new(std::fs::File::create(path).with_context(|| format!("create {}", path.display()))?);
-    let mut header = String::from("time,lat_deg,lon_deg,ax_mps2,ay_mps2,az_mps2");
-    for u in 0..units.len() {
-        for c in 0..CHANNELS {
-            header += &format!(",u{u}_c{c}");
-        }
-    }
-    writeln!(f, "{header},true_yaw_deg")?;
-    for _ in 0..cfg.draws {
-        let (t, obs, p) = montecarlo::draw_sun(&mut rng, cfg.min_elevation_deg, cfg.max_elevation_deg);
-        let field = montecarlo::calm_field(montecarlo::sun_ned(&p), cfg.water, cfg.depth_m, &mut rng);
-        let mt = cfg.max_tilt_deg.to_radians();
-        let (roll, pitch, yaw) = (rng.random_range(-mt..=mt), rng.random_range(-mt..=mt), rng.random_range(0.0..std::f64::consts::TAU));
-        let r_nb = Rotation3::from_euler_angles(roll, pitch, yaw);
-        let cal: Vec<_> = units.iter().map(|u| sim::true_channels(u, &cfg.errors, &mut rng)).collect();
-        let counts = sim::counts(field.as_ref(), &r_nb, &units, &cal, &cfg.errors, &mut rng);
-        let a = sim::accel(&r_nb, cfg.tilt_sigma_rad, &mut rng);
-        let mut row = format!(
-            "{t},{:.7},{:.7},{:.6},{:.6},{:.6}",
-            (obs.lat_rad as f64).to_degrees(),
-            (obs.lon_rad as f64).to_degrees(),
-            a[0],
-            a[1],
-            a[2]
-        );
-        for c in counts.iter().flatten() {
-            row += &format!(",{c}");
-        }
-        writeln!(f, "{row},{:.6}", yaw.to_degrees())?;
-    }
-    Ok(())
-}
-
-/// One parsed CSV row.
-struct Row {
-    t: Option<i64>,
-    obs: Option<Observer>,
-    accel: [f32; 3],
-    counts: Vec<[i16; CHANNELS]>,
-}
-
-fn parse_row(line: &str, n_units: usize) -> Result<Row> {
-    let f: Vec<&str> = line.split(',').map(str::trim).collect();
-    if f.len() < 6 + 4 * n_units {
-        bail!("expected at least {} columns, found {}", 6 + 4 * n_units, f.len());
-    }
-    let t = if f[0].is_empty() {
-        None
-    } else if let Ok(us) = f[0].parse::<i64>() {
-        Some(us)
-    } else {
-        Some(super::sun::parse_time_us(f[0])?)
-    };
-    let num = |s: &str, what: &str| -> Result<f64> {
-        let v: f64 = s.parse().with_context(|| format!("{what}: not a number: {s:?}"))?;
-        if !v.is_finite() {
-            bail!("{what}: not finite");
-        }
-        Ok(v)
-    };
-    let obs = if f[1].is_empty() || f[2].is_empty() {
-        None
-    } else {
-        Some(Observer {
-            lat_rad: num(f[1], "lat_deg")?.to_radians() as f32,
-            lon_rad: num(f[2], "lon_deg")?.to_radians() as f32,
-            height_m: 0.0,
-        })
-    };
-    let accel = [num(f[3], "ax")? as f32, num(f[4], "ay")? as f32, num(f[5], "az")? as f32];
-    let mut counts = Vec::with_capacity(n_units);
-    for u in 0..n_units {
-        let mut c = [0i16; CHANNELS];
-        for (k, x) in c.iter_mut().enumerate() {
-            let s = f[6 + 4 * u + k];
-            *x = s.parse().with_context(|| format!("unit {u} channel {k}: not a 16-bit count: {s:?}"))?;
-        }
-        counts.push(c);
-    }
-    Ok(Row { t, obs, accel, counts })
-}
-
 fn from_csv(path: &std::path::Path, format: Format) -> Result<ExitCode> {
     let text = std::fs::read_to_string(path).with_context(|| format!("read {}", path.display()))?;
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
     let (_, header) = lines.next().context("empty CSV")?;
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let n_count_cols = cols.iter().filter(|c| c.starts_with('u') && c.contains("_c")).count();
-    if n_count_cols % CHANNELS != 0 || n_count_cols / CHANNELS < 3 {
-        bail!("header must have 4 count columns per unit (u0_c0..u0_c3, ...) for at least 3 units, found {n_count_cols}");
-    }
-    let n_units = n_count_cols / CHANNELS;
-    if n_units > compass::MAX_UNITS {
-        bail!("at most {} units", compass::MAX_UNITS);
-    }
-    let truth_col = cols.iter().position(|c| *c == "true_yaw_deg");
+    let raw_csv::Header { n_units, truth_col } = raw_csv::parse_header(header)?;
     let units = sim::default_units(n_units);
     let cfg = montecarlo::compass_config(&sim::Water::clear(), 0.01f64.to_radians());
     let (mut fixes, mut rows, mut bad) = (0usize, 0usize, 0usize);
     let mut sq = 0.0;
     for (i, line) in lines {
         rows += 1;
-        let row = match parse_row(line, n_units) {
+        let row = match raw_csv::parse_row(line, n_units) {
             Ok(r) => r,
             Err(e) => {
                 // Bad rows are reported and skipped; the others still run.
@@ -840,37 +662,4 @@ fn from_csv(path: &std::path::Path, format: Format) -> Result<ExitCode> {
         println!("{rows} rows, {fixes} fixes, {bad} unreadable{rmse}");
     }
     Ok(if bad > 0 { ExitCode::from(2) } else { ExitCode::SUCCESS })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn csv_round_trip_and_bad_rows() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("sim.csv");
-        let cfg = montecarlo::McConfig { draws: 5, seed: 4, ..montecarlo::McConfig::default() };
-        emit_csv(&cfg, &path).unwrap();
-        let text = std::fs::read_to_string(&path).unwrap();
-        let mut lines = text.lines();
-        let header = lines.next().unwrap();
-        assert!(header.starts_with("time,lat_deg,lon_deg,ax_mps2"));
-        let units = sim::default_units(8);
-        let ccfg = montecarlo::compass_config(&sim::Water::clear(), 0.01f64.to_radians());
-        for line in lines {
-            let row = parse_row(line, 8).unwrap();
-            let truth: f64 = line.rsplit(',').next().unwrap().parse().unwrap();
-            let input =
-                CompassInput { counts: &row.counts, accel_body_mps2: row.accel, unix_us: row.t, observer: row.obs, delta_t_s: 70.0 };
-            let fx = compass::solve(&units, &input, &ccfg).unwrap();
-            let err = montecarlo::wrap_pi((fx.heading_rad as f64) - truth.to_radians()).to_degrees();
-            assert!(err.abs() < 1.0, "{err}");
-        }
-        assert!(parse_row("1,2,3", 8).is_err());
-        let bad_count = format!("0,10,10,0,0,-9.8{}", ",70000".repeat(32));
-        assert!(parse_row(&bad_count, 8).is_err());
-        let nan = format!("0,10,10,NaN,0,-9.8{}", ",100".repeat(32));
-        assert!(parse_row(&nan, 8).is_err());
-    }
 }

@@ -147,8 +147,15 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             println!("report: {} ({} figures), {}", written.markdown.display(), written.figures.len(), written.html.display());
             if let Some(s) = &written.stats {
                 println!(
-                    "errors vs truth ({} solutions): horizontal RMSE {:.3} m (max {:.3}), depth RMSE {:.3} m, heading RMSE {:.3} deg (max {:.3})",
-                    s.scored, s.horizontal_rmse_m, s.horizontal_max_m, s.depth_rmse_m, s.heading_rmse_deg, s.heading_max_deg
+                    "errors vs truth ({} aided solutions): horizontal RMS {:.2} m (max {:.2}), depth RMSE {:.3} m, heading RMSE {:.3} deg (max {:.3}; over the {} converged; all aided {:.2} deg)",
+                    s.scored,
+                    s.horizontal_rms_err_m,
+                    s.horizontal_max_err_m,
+                    s.depth_rmse_m,
+                    s.heading_rmse_deg,
+                    s.heading_max_abs_err_deg,
+                    s.heading_converged_epochs,
+                    s.heading_rmse_all_aided_deg
                 );
             }
         }

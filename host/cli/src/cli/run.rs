@@ -18,7 +18,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use super::Format;
 use subnav_link::export::TimeBase;
 use subnav_sil::Scenario;
-use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_csv};
+use subnav_link::record::session::{TruthRow, truth_csv};
+use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_rows};
 use subnav_sil::sil::{run_native_live, run_native_scored};
 
 #[derive(clap::Args, Debug)]
@@ -315,9 +316,10 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     drop(feed);
     super::live::finish(live);
     super::mavlink::finish(bridge, &args.mavlink.bridge)?;
+    let truth = truth_rows(&sc, 0.1);
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
-        subnav_link::output::write_atomic(p, truth_csv(&sc, 0.1).as_bytes())
+        subnav_link::output::write_atomic(p, truth_csv(&truth).as_bytes())
             .with_context(|| format!("writing the truth {}", p.display()))?;
     }
     match format {
@@ -325,7 +327,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         Format::Text => print_summary(&result),
     }
     if let (Some(dir), Some(rec)) = (&args.report, &record) {
-        let html = write_report(dir, rec, &sc, &result)?;
+        let html = write_report(dir, rec, &sc, &result, truth)?;
         if format == Format::Text {
             println!("report                {}", html.display());
         }
@@ -350,13 +352,12 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
 
 /// The report of a run: its recording with the truth, and the map's nodes and the closures the
 /// head accepted. Returns the HTML page.
-fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: &DiveResult) -> Result<PathBuf> {
+fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: &DiveResult, truth: Vec<TruthRow>) -> Result<PathBuf> {
     let (mut session, _note) = super::export::load_session(rec, None)?;
     // A host restarted mid-dive wrote the rest of the dive to the next recordings.
     for next in r.recordings.iter().skip(1) {
         session.append(super::export::load_session(&next.path, None)?.0);
     }
-    let (truth, _) = subnav_link::record::session::parse_truth_csv(&truth_csv(sc, 0.1));
     let mut data = subnav_report::ReportData::from_session(&session, Some(truth));
     if let Some(m) = &r.map {
         data.map_nodes = m.nodes.iter().map(|n| n.pos_ned_m).collect();

@@ -3,7 +3,7 @@
 
 use std::process::ExitCode;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use serde_json::json;
 use subnav_core::ephemeris::{self, Atmosphere, Observer};
 
@@ -38,10 +38,7 @@ pub struct Args {
 }
 
 /// POSIX microseconds of an RFC 3339 time.
-pub fn parse_time_us(s: &str) -> Result<i64> {
-    let t = chrono::DateTime::parse_from_rfc3339(s.trim()).with_context(|| format!("not an RFC 3339 time: {s:?}"))?;
-    t.timestamp_micros().checked_add(0).context("time out of range")
-}
+pub use subnav_compass::raw_csv::parse_time_us;
 
 pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let t = parse_time_us(&args.time)?;

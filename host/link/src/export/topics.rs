@@ -28,6 +28,7 @@
 //! subnav fills.
 
 use serde_json::{Value, json};
+use subnav_core::ukf::wrap_deg;
 use subnav_wire::{NavMode, NavSolution, Uplink};
 
 use super::TimeBase;
@@ -129,9 +130,6 @@ fn f(x: f32) -> f64 {
 pub fn yaw_rad(att_nb_wxyz: [f32; 4]) -> f64 {
     let [w, x, y, z] = att_nb_wxyz.map(f64::from);
     (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
-}
-fn wrap_deg(x: f64) -> f64 {
-    (x + 180.0).rem_euclid(360.0) - 180.0
 }
 /// A finite number, or JSON null (a NaN "no value yet"), which [`omit_unknown`] then takes out.
 fn num(x: f64) -> Value {
@@ -328,14 +326,15 @@ impl Projector {
             json: json!({"timestamp": stamp(t), "frame_id": FRAME, "pose": pose}),
         });
         let Some(n) = self.last_nav else { return };
-        let [sn, se, _] = n.sigma_pos_m.map(f);
-        let (en, ee) = (f(n.pos_ned_m[0]) - pos_ned_m[0], f(n.pos_ned_m[1]) - pos_ned_m[1]);
+        // The run's scoring (`crate::score`), epoch by epoch.
+        let e = crate::score::epoch(&n, &crate::score::Truth { pos_ned_m, yaw_rad: yaw_rad_true });
         let mut json = json!({
             "timestamp": stamp(t), "nav_t_us": n.t_us, "mode": format!("{:?}", n.mode),
-            "heading_error_deg": num(wrap_deg(yaw_rad(n.att_nb_wxyz).to_degrees() - yaw_rad_true.to_degrees())),
-            "sigma_heading_deg": num(f(n.sigma_att_rad[2]).to_degrees()),
-            "horizontal_error_m": num((en * en + ee * ee).sqrt()), "sigma_horizontal_m": num((sn * sn + se * se).sqrt()),
-            "depth_error_m": num(f(n.pos_ned_m[2]) - pos_ned_m[2]),
+            "heading_error_deg": num(e.heading_err_deg),
+            "sigma_heading_deg": num(e.sigma_heading_deg),
+            "horizontal_error_m": num(e.horizontal_err_m), "sigma_horizontal_m": num(e.sigma_horizontal_m),
+            "depth_error_m": num(e.err_ned_m[2]),
+            "heading_converged": e.heading_converged,
         });
         omit_unknown(&mut json, |_| nav_why(n.mode));
         out.push(Msg { topic: TRUTH_ERROR.into(), t_us: t, publish_us: t_host_us, json });
@@ -412,6 +411,7 @@ fn truth_error_schema() -> Value {
         json!({
             "timestamp": time_schema(), "nav_t_us": {"type": "integer"}, "mode": {"type": "string"}, "heading_error_deg": n(),
             "sigma_heading_deg": n(), "horizontal_error_m": n(), "sigma_horizontal_m": n(), "depth_error_m": n(),
+            "heading_converged": {"type": "boolean", "description": "the yaw 1-sigma is within the scoring's convergence bound (subnav_link::score)"},
         }),
     )
 }

@@ -48,6 +48,17 @@ pub struct Session {
     pub damage: Vec<Damage>,
 }
 
+/// Truth rows as CSV text (`t_s,n_m,e_m,d_m,yaw_rad`, what [`parse_truth_csv`] reads; time to
+/// the millisecond, positions to 0.1 mm, yaw to 1e-6 rad).
+pub fn truth_csv(rows: &[TruthRow]) -> String {
+    let mut out = String::from("t_s,n_m,e_m,d_m,yaw_rad\n");
+    for r in rows {
+        let ([n, e, d], t, yaw) = (r.pos_ned_m, r.t_s, r.yaw_rad);
+        out.push_str(&format!("{t:.3},{n:.4},{e:.4},{d:.4},{yaw:.6}\n"));
+    }
+    out
+}
+
 /// Parse truth CSV text (`t_s,n_m,e_m,d_m,yaw_rad`, header lines and blank lines skipped).
 /// Returns the rows and the number of lines that were neither a header nor a valid row.
 pub fn parse_truth_csv(text: &str) -> (Vec<TruthRow>, u64) {

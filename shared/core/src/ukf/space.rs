@@ -58,6 +58,14 @@ pub fn wrap_pi<T: RealField + Copy>(a: T) -> T {
     y
 }
 
+/// Wrap an angle in degrees to [-180, 180): the one degree wrap of the host's heading errors
+/// and innovations (scoring, reports, live topics). `%` and the sign fix are what
+/// `f64::rem_euclid` does, which `no_std` lacks, so the result is the same to the bit.
+pub fn wrap_deg(x_deg: f64) -> f64 {
+    let r = (x_deg + 180.0) % 360.0;
+    (if r < 0.0 { r + 360.0 } else { r }) - 180.0
+}
+
 /// A scalar with a sine/cosine for [`AngleSpace`]. f32 uses the single-precision kernel of
 /// `ephemeris::phase` (abs error ~2e-7): `libm`'s `sinf`/`cosf`, which nalgebra's `RealField`
 /// calls, compute in f64, which is software emulation on the Cortex-M4F (the heading update's

@@ -22,7 +22,7 @@ pub mod weights;
 
 pub use adapt::{AdaptConfig, MeasNoise, NisQScale, QScaleConfig};
 pub use filter::{Ukf, UkfConfig, UkfError, UkfHealth, UpdateReport};
-pub use space::{AngleSpace, Euclidean, Space, wrap_pi};
+pub use space::{AngleSpace, Euclidean, Space, wrap_deg, wrap_pi};
 pub use weights::SigmaWeights;
 
 /// The nalgebra this module is built on (for crates that do not depend on it directly).
