@@ -571,7 +571,7 @@ fn geolocate(args: &GeolocateArgs, format: Format) -> Result<ExitCode> {
     };
     let r = geoloc::run(&cfg);
     if r.fitted == 0 {
-        bail!("no trial of {} gave a position (no sun fixes to fit): no statistics", r.trials);
+        bail!("no trial of {} gave a position (no sun fixes to fit; refused: {:?}): no statistics", r.trials, r.no_fix);
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&r)?),
