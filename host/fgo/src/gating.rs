@@ -200,16 +200,10 @@ pub fn imu_noise_scale(items: &[Innovation]) -> Result<Option<f64>, FgoError> {
         return Ok(None);
     }
     let dim = items[0].r.len();
-    let q: f64 = std::env::var("X_Q").ok().and_then(|v| v.parse().ok()).unwrap_or(0.5);
-    let target = chi2_quantile(dim, q)?;
+    let target = chi2_quantile(dim, 0.5)?;
     let med = |s: f64| -> Result<f64, FgoError> {
         let mut g = items.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
-        if q == 0.5 {
-            return Ok(median(&mut g));
-        }
-        g.sort_by(|a, b| a.total_cmp(b));
-        let k = ((g.len() as f64 - 1.0) * q).round() as usize;
-        Ok(g[k])
+        Ok(median(&mut g))
     };
     if med(1.0)? <= target {
         return Ok(Some(1.0));
@@ -339,12 +333,7 @@ pub fn robust_batch(
     let mut s = 1.0;
     for _ in 0..n_fix {
         let inn = deletion_innovations(nodes, factors, 1.0)?;
-        s = if std::env::var_os("X_BLOOP").is_some() {
-            let keep: Vec<Innovation> = inn.iter().zip(&kappas).filter(|(_, k)| **k == 1.0).map(|(i, _)| i.clone()).collect();
-            imu_noise_scale(&keep)?.unwrap_or(1.0)
-        } else {
-            imu_noise_scale(&inn)?.unwrap_or(1.0)
-        };
+        s = imu_noise_scale(&inn)?.unwrap_or(1.0);
         let gammas = inn.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
         let rs = robust_scale(&gammas, 3)?;
         // the largest test value among the fixes not yet inflated
@@ -362,26 +351,9 @@ pub fn robust_batch(
     //    on its test value at the estimated scale; then the problem is solved with the IMU noise
     //    at that scale
     let inn = deletion_innovations(nodes, factors, 1.0)?;
-    let flagged: Vec<bool> = kappas.iter().map(|k| *k > 1.0).collect();
-    let bexcl: u32 = std::env::var("X_BEXCL").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
-    if bexcl > 0 {
-        let keep: Vec<Innovation> = inn
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| {
-                let isolated = !(*i > 0 && flagged[i - 1]) && !flagged.get(i + 1).copied().unwrap_or(false);
-                match bexcl {
-                    1 => !flagged[*i],
-                    2 => !flagged[*i] && !(*i > 0 && flagged[i - 1]) && !flagged.get(i + 1).copied().unwrap_or(false),
-                    _ => !(flagged[*i] && isolated),
-                }
-            })
-            .map(|(_, x)| x.clone())
-            .collect();
-        s = imu_noise_scale(&keep)?.unwrap_or(s);
-    }
     let gammas = inn.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
     let rs = robust_scale(&gammas, 3)?;
+    let flagged: Vec<bool> = kappas.iter().map(|k| *k > 1.0).collect();
     for (i, (k, g)) in kappas.iter_mut().zip(&gammas).enumerate() {
         if flagged[i] {
             let isolated = !(i > 0 && flagged[i - 1]) && !flagged.get(i + 1).copied().unwrap_or(false);
