@@ -200,16 +200,10 @@ pub fn imu_noise_scale(items: &[Innovation]) -> Result<Option<f64>, FgoError> {
         return Ok(None);
     }
     let dim = items[0].r.len();
-    let q: f64 = std::env::var("X_Q").ok().and_then(|v| v.parse().ok()).unwrap_or(0.5);
-    let target = chi2_quantile(dim, q)?;
+    let target = chi2_quantile(dim, 0.5)?;
     let med = |s: f64| -> Result<f64, FgoError> {
         let mut g = items.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
-        if q == 0.5 {
-            return Ok(median(&mut g));
-        }
-        g.sort_by(|a, b| a.total_cmp(b));
-        let k = ((g.len() as f64 - 1.0) * q).round() as usize;
-        Ok(g[k])
+        Ok(median(&mut g))
     };
     if med(1.0)? <= target {
         return Ok(Some(1.0));
@@ -306,106 +300,12 @@ pub fn decide(t_s: f64, sensor: Sensor, gamma: f64, dim: usize, cfg: &GatingConf
 ///
 /// Returns the LM report of all solves together (the final problem's cost at the given nodes and
 /// at the optimum), the number of fixes inflated and the IMU noise scale.
-/// scratch (X_BNB): batch with the neighbours test: a fix out if its deletion test value exceeds
-/// chi2 at the kept fixes' scale and A^2 times its kept neighbours' deletion values with it out.
-pub fn robust_batch_nb(
-    nodes: &mut [NodeState],
-    factors: &mut [Factor],
-    cfg: &GatingConfig,
-    opts: &crate::solver::LmOptions,
-) -> Result<(crate::solver::LmReport, usize, f64), FgoError> {
-    let thr = chi2_quantile(3, cfg.confidence)?;
-    let a: f64 = std::env::var("X_BA").ok().and_then(|v| v.parse().ok()).unwrap_or(3.0);
-    let m_cand: usize = std::env::var("X_BM").ok().and_then(|v| v.parse().ok()).unwrap_or(5);
-    let set_kappas = |factors: &mut [Factor], kappas: &[f64]| {
-        let mut it = kappas.iter();
-        for f in factors.iter_mut() {
-            if let Factor::Usbl(u) = f {
-                if let Some(k) = it.next() {
-                    u.noise = u.noise.scaled(k / u.kappa);
-                    u.kappa = *k;
-                }
-            }
-        }
-    };
-    let n_fix = factors.iter().filter(|f| matches!(f, Factor::Usbl(_))).count();
-    let mut kappas = vec![1.0; n_fix];
-    set_kappas(factors, &kappas);
-    factors.iter_mut().for_each(|f| f.set_imu_noise_scale(1.0));
-    let initial = nodes.to_vec();
-    let mut iterations = 0;
-    let mut report = crate::solver::solve_lm(nodes, factors, opts)?;
-    iterations += report.iterations;
-    let mut s = 1.0;
-    for _ in 0..n_fix {
-        let inn = deletion_innovations(nodes, factors, 1.0)?;
-        let kept: Vec<Innovation> = inn.iter().zip(&kappas).filter(|(_, k)| **k == 1.0).map(|(i, _)| i.clone()).collect();
-        s = imu_noise_scale(&kept)?.unwrap_or(1.0);
-        let g1: Vec<f64> = inn.iter().map(|i| i.gamma_at(1.0)).collect::<Result<_, _>>()?;
-        let gs: Vec<f64> = inn.iter().map(|i| i.gamma_at(s)).collect::<Result<_, _>>()?;
-        let nog = std::env::var_os("X_BNOG").is_some();
-        let mut cand: Vec<usize> = (0..n_fix).filter(|k| kappas[*k] == 1.0 && (nog || gs[*k] > thr)).collect();
-        cand.sort_by(|x, y| g1[*y].total_cmp(&g1[*x]));
-        let mut done = false;
-        for &k in cand.iter().take(m_cand) {
-            let prev = (0..k).rev().find(|j| kappas[*j] == 1.0);
-            let next = (k + 1..n_fix).find(|j| kappas[*j] == 1.0);
-            // isolation: the fixes right next to it not out
-            if (k > 0 && kappas[k - 1] > 1.0) || (k + 1 < n_fix && kappas[k + 1] > 1.0) {
-                continue;
-            }
-            let saved = nodes.to_vec();
-            kappas[k] = OUTLIER_KAPPA;
-            set_kappas(factors, &kappas);
-            let r = crate::solver::solve_lm(nodes, factors, opts)?;
-            iterations += r.iterations;
-            let inn2 = deletion_innovations(nodes, factors, 1.0)?;
-            let gn = [prev, next].iter().flatten().map(|j| inn2[*j].gamma_at(1.0)).collect::<Result<Vec<f64>, _>>()?;
-            let gmax = gn.iter().copied().fold(0.0f64, f64::max);
-            if std::env::var_os("X_BPRINT").is_some() {
-                println!("BNB cand {k} g1 {:.1} gs {:.1} s {s:.2} gn {gn:?} prev {prev:?} next {next:?}", g1[k], gs[k]);
-            }
-            if !gn.is_empty() && g1[k] > a * a * gmax {
-                report = r;
-                done = true;
-                break;
-            }
-            kappas[k] = 1.0;
-            set_kappas(factors, &kappas);
-            nodes.copy_from_slice(&saved);
-        }
-        if !done {
-            break;
-        }
-    }
-    let inn = deletion_innovations(nodes, factors, 1.0)?;
-    let kept: Vec<Innovation> = inn.iter().zip(&kappas).filter(|(_, k)| **k == 1.0).map(|(i, _)| i.clone()).collect();
-    s = imu_noise_scale(&kept)?.unwrap_or(s);
-    if std::env::var_os("X_BS1").is_some() {
-        s = 1.0;
-    }
-    factors.iter_mut().for_each(|f| f.set_imu_noise_scale(s));
-    let r = crate::solver::solve_lm(nodes, factors, opts)?;
-    iterations += r.iterations;
-    report = crate::solver::LmReport {
-        iterations,
-        initial_cost: crate::solver::total_cost(&initial, factors)?,
-        final_cost: r.final_cost,
-        converged: r.converged && report.converged || r.converged,
-    };
-    let applied = kappas.iter().filter(|k| **k > 1.0).count();
-    Ok((report, applied, s))
-}
-
 pub fn robust_batch(
     nodes: &mut [NodeState],
     factors: &mut [Factor],
     cfg: &GatingConfig,
     opts: &crate::solver::LmOptions,
 ) -> Result<(crate::solver::LmReport, usize, f64), FgoError> {
-    if std::env::var_os("X_BNB").is_some() {
-        return robust_batch_nb(nodes, factors, cfg, opts);
-    }
     let thr = chi2_quantile(3, cfg.confidence)?;
     let set_kappas = |factors: &mut [Factor], kappas: &[f64]| -> Result<(), FgoError> {
         let mut it = kappas.iter();
@@ -433,12 +333,7 @@ pub fn robust_batch(
     let mut s = 1.0;
     for _ in 0..n_fix {
         let inn = deletion_innovations(nodes, factors, 1.0)?;
-        s = if std::env::var_os("X_BLOOP").is_some() {
-            let keep: Vec<Innovation> = inn.iter().zip(&kappas).filter(|(_, k)| **k == 1.0).map(|(i, _)| i.clone()).collect();
-            imu_noise_scale(&keep)?.unwrap_or(1.0)
-        } else {
-            imu_noise_scale(&inn)?.unwrap_or(1.0)
-        };
+        s = imu_noise_scale(&inn)?.unwrap_or(1.0);
         let gammas = inn.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
         let rs = robust_scale(&gammas, 3)?;
         // the largest test value among the fixes not yet inflated
@@ -456,54 +351,16 @@ pub fn robust_batch(
     //    on its test value at the estimated scale; then the problem is solved with the IMU noise
     //    at that scale
     let inn = deletion_innovations(nodes, factors, 1.0)?;
-    let flagged: Vec<bool> = kappas.iter().map(|k| *k > 1.0).collect();
-    let bexcl: u32 = std::env::var("X_BEXCL").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
-    if bexcl > 0 {
-        let keep: Vec<Innovation> = inn
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| {
-                let isolated = !(*i > 0 && flagged[i - 1]) && !flagged.get(i + 1).copied().unwrap_or(false);
-                match bexcl {
-                    1 => !flagged[*i],
-                    2 => !flagged[*i] && !(*i > 0 && flagged[i - 1]) && !flagged.get(i + 1).copied().unwrap_or(false),
-                    _ => !(flagged[*i] && isolated),
-                }
-            })
-            .map(|(_, x)| x.clone())
-            .collect();
-        s = imu_noise_scale(&keep)?.unwrap_or(s);
-    }
     let gammas = inn.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
     let rs = robust_scale(&gammas, 3)?;
-    let h3 = std::env::var_os("X_H3").is_some();
-    let g1: Vec<f64> = inn.iter().map(|i| i.gamma_at(1.0)).collect::<Result<Vec<f64>, FgoError>>()?;
-    let ba: f64 = std::env::var("X_BA").ok().and_then(|v| v.parse().ok()).unwrap_or(3.0);
-    let nb_ok = |i: usize| -> bool {
-        let prev = (0..i).rev().find(|j| !flagged[*j]);
-        let next = (i + 1..flagged.len()).find(|j| !flagged[*j]);
-        let gn: Vec<f64> = [prev, next].iter().flatten().map(|j| g1[*j]).collect();
-        !gn.is_empty() && g1[i] > ba * ba * gn.iter().copied().fold(0.0f64, f64::max)
-    };
+    let flagged: Vec<bool> = kappas.iter().map(|k| *k > 1.0).collect();
     for (i, (k, g)) in kappas.iter_mut().zip(&gammas).enumerate() {
         if flagged[i] {
             let isolated = !(i > 0 && flagged[i - 1]) && !flagged.get(i + 1).copied().unwrap_or(false);
-            let isolated = isolated && (!h3 || nb_ok(i));
-            *k = if isolated {
-                OUTLIER_KAPPA
-            } else if std::env::var_os("X_HYB").is_some() {
-                1.0
-            } else if std::env::var_os("X_H2").is_some() || h3 {
-                (g / (rs * thr * s)).max(1.0)
-            } else {
-                (g / (rs * thr)).max(1.0)
-            };
+            *k = if isolated { OUTLIER_KAPPA } else { (g / (rs * thr)).max(1.0) };
         }
     }
     set_kappas(factors, &kappas)?;
-    if std::env::var_os("X_DS1").is_some() || std::env::var_os("X_HYB").is_some() || std::env::var_os("X_H2").is_some() || h3 {
-        s = 1.0;
-    }
     factors.iter_mut().for_each(|f| f.set_imu_noise_scale(s));
     report = crate::solver::solve_lm(nodes, factors, opts)?;
     iterations += report.iterations;

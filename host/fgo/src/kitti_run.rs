@@ -244,8 +244,6 @@ pub struct GraphRun {
     pub batch_cpu_s: f64,
     pub smoother_wall_s: f64,
     pub batch_wall_s: f64,
-    /// scratch
-    pub delayed: Vec<(f64, bool, bool)>,
 }
 
 pub fn log_config(sc: &Scenario) -> LogConfig {
@@ -280,7 +278,7 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         ),
         ImuBias::default(),
     ));
-    let mut queue: Vec<Option<f64>> = Vec::new();
+    let mut prev_jumped: Option<f64> = None;
     for e in &sc.epochs[1..] {
         while next < data.imu.len() && data.imu[next].t_s <= e.t_s {
             sm.push_imu(data.imu[next])?;
@@ -289,15 +287,10 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         if e.role == Role::Used {
             sm.add_usbl(e.t_s, e.measured_enu_m, cfg.fix_sigma_m, cfg.fix_sigma_m)?;
             if cfg.oracle == Oracle::NextFix {
-                let skip: Vec<f64> =
-                    std::env::var("X_ORACLE_SKIP").map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect()).unwrap_or_default();
-                let delay: usize = std::env::var("X_ORACLE_DELAY").ok().and_then(|v| v.parse().ok()).unwrap_or(1);
-                queue.push(e.jumped.then_some(e.t_s));
-                if queue.len() > delay {
-                    if let Some(p) = queue.remove(0).filter(|p| !skip.iter().any(|x| (p - sc.epochs[0].t_s - x).abs() < 0.5)) {
-                        sm.exclude_fix(p)?;
-                    }
+                if let Some(p) = prev_jumped.take() {
+                    sm.exclude_fix(p)?;
                 }
+                prev_jumped = e.jumped.then_some(e.t_s);
             }
         } else if !sm.add_node(e.t_s)? {
             return Err(FgoError::Numeric(format!("epoch t={} fell before the smoother window", e.t_s)));
@@ -307,7 +300,6 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     }
     let smoother_wall_s = t_start.elapsed().as_secs_f64();
     let smoother_cpu_s = sm.cpu_s.iter().sum();
-    let delayed = sm.delayed.clone();
     let (est, mut factors) = sm.batch_problem();
     if est.len() != sc.epochs.len() {
         return Err(FgoError::Numeric(format!("{} nodes for {} epochs", est.len(), sc.epochs.len())));
@@ -342,7 +334,6 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         batch_cpu_s,
         smoother_wall_s,
         batch_wall_s,
-        delayed,
     })
 }
 

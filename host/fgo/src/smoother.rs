@@ -84,10 +84,6 @@ pub fn thread_cpu_s() -> Option<f64> {
     (rc == 0).then(|| ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
 }
 
-fn chi2_q3(c: f64) -> Result<f64, FgoError> {
-    subnav_base::chi2::chi2_quantile(3, c).map_err(Into::into)
-}
-
 /// Estimated node with its time and global id.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Estimate {
@@ -123,52 +119,6 @@ pub struct Smoother {
     pub imu_scale: f64,
     /// The last [`gating::ADAPT_WINDOW`] USBL innovations at arrival.
     usbl_innovations: Vec<gating::Innovation>,
-    /// scratch: time, flagged at arrival, removed from the scale
-    inn_meta: Vec<(f64, bool, bool)>,
-    x: Exp,
-    /// scratch: delayed decisions (time, failed)
-    pub delayed: Vec<(f64, bool, bool)>,
-    /// scratch: decision-time deletion innovations (t, |r_h|, innovation, out)
-    dec: Vec<(f64, f64, gating::Innovation, bool)>,
-}
-
-#[derive(Debug, Clone, Copy)]
-struct Exp {
-    win: usize,
-    cap: f64,
-    excl: bool,
-    s1: bool,
-    noarr: bool,
-    delay: u8,
-    dthr: f64,
-    iso: bool,
-    pass: bool,
-    repl: bool,
-    cv: f64,
-    a: f64,
-    nloc: usize,
-}
-
-impl Exp {
-    fn from_env() -> Self {
-        let f = |n: &str, d: f64| std::env::var(n).ok().and_then(|v| v.parse().ok()).unwrap_or(d);
-        let b = |n: &str| std::env::var_os(n).is_some();
-        Self {
-            win: f("X_WIN", 30.0) as usize,
-            cap: f("X_CAP", f64::INFINITY),
-            excl: b("X_EXCL"),
-            s1: b("X_S1"),
-            noarr: b("X_NOARR"),
-            delay: f("X_DELAY", 0.0) as u8,
-            dthr: f("X_DTHR", 1.0),
-            iso: b("X_ISO"),
-            pass: b("X_PASS"),
-            repl: b("X_REPL"),
-            cv: f("X_CV", 0.5),
-            a: f("X_A", 3.0),
-            nloc: f("X_NLOC", 2.0) as usize,
-        }
-    }
 }
 
 impl Smoother {
@@ -200,10 +150,6 @@ impl Smoother {
             next_id: 1,
             imu_scale: 1.0,
             usbl_innovations: Vec::new(),
-            inn_meta: Vec::new(),
-            x: Exp::from_env(),
-            delayed: Vec::new(),
-            dec: Vec::new(),
         };
         Ok(s)
     }
@@ -233,7 +179,7 @@ impl Smoother {
         let p = self.conf.imu;
         let mut pair =
             [Factor::Imu(ImuFactor::new(i, j, pim)?), Factor::BiasRw(BiasRandomWalkFactor::new(i, j, p.acc_bias_rw, p.gyro_bias_rw, dt)?)];
-        pair.iter_mut().for_each(|f| f.set_imu_noise_scale(self.window_scale()));
+        pair.iter_mut().for_each(|f| f.set_imu_noise_scale(self.imu_scale));
         Ok(pair)
     }
 
@@ -297,29 +243,18 @@ impl Smoother {
             // the IMU noise scale from the fixes' innovations, this one included (accepted or
             // not), then the test at that scale
             let hph = h * DMatrix::from_iterator(15, 15, p.iter().copied()) * h.transpose();
-            let inn = gating::Innovation { r: e.residual.clone(), hph, r_cov: cov.clone(), imu_scale: self.window_scale() };
-            if self.usbl_innovations.len() == self.x.win {
+            let inn = gating::Innovation { r: e.residual.clone(), hph, r_cov: cov.clone(), imu_scale: self.imu_scale };
+            if self.usbl_innovations.len() == gating::ADAPT_WINDOW {
                 self.usbl_innovations.remove(0);
-                self.inn_meta.remove(0);
             }
             self.usbl_innovations.push(inn.clone());
-            self.inn_meta.push((t, false, false));
-            self.update_scale()?;
+            if let Some(s) = gating::imu_noise_scale(&self.usbl_innovations)? {
+                self.set_imu_scale(s);
+            }
             let gamma = inn.gamma_at(self.imu_scale)?;
             let gammas = self.usbl_innovations.iter().map(|i| i.gamma_at(self.imu_scale)).collect::<Result<Vec<f64>, FgoError>>()?;
             let scale = gating::robust_scale(&gammas, e.residual.len())?;
-            let mut d = gating::decide(t, sensor, gamma, e.residual.len(), &self.cfg.gating, scale)?;
-            if let Some(m) = self.inn_meta.last_mut() {
-                m.1 = d.abnormal;
-            }
-            if self.x.noarr {
-                d.kappa = 1.0;
-            }
-            if std::env::var_os("X_ARRS").is_some() && d.abnormal {
-                // the inflation at the window's IMU scale (the given noise): same relative weight
-                d.kappa = (d.kappa / (self.imu_scale / self.window_scale())).max(1.0);
-            }
-            d
+            gating::decide(t, sensor, gamma, e.residual.len(), &self.cfg.gating, scale)?
         } else {
             let scale = if self.cfg.gating.adaptive { self.gate_log.adaptive_scale(sensor, e.residual.len())? } else { 1.0 };
             gating::gate_scaled(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating, scale)?
@@ -340,330 +275,8 @@ impl Smoother {
         Ok(())
     }
 
-    fn diag(&self, t_now: f64) -> Result<(), FgoError> {
-        let inn = gating::deletion_innovations(&self.nodes, &self.factors, self.imu_scale)?;
-        let fixes: Vec<&UsblFactor> = self.factors.iter().filter_map(|f| if let Factor::Usbl(u) = f { Some(u) } else { None }).collect();
-        for (u, i) in fixes.iter().zip(&inn) {
-            let g = i.gamma_at(self.imu_scale)?;
-            println!(
-                "DIAG {t_now:.3} {:.3} {:.3e} {:.4} {:.4} {:.4} {:.4} {:.4} {:.4}",
-                self.times[u.node],
-                u.kappa,
-                i.r[0],
-                i.r[1],
-                i.r[2],
-                i.hph.trace(),
-                g,
-                self.imu_scale
-            );
-        }
-        Ok(())
-    }
-
-    fn update_scale(&mut self) -> Result<(), FgoError> {
-        let mut items = Vec::new();
-        if std::env::var_os("X_SDEC").is_some() && self.dec.len() >= gating::ADAPT_MIN {
-            let mut it: Vec<gating::Innovation> =
-                self.dec.iter().rev().filter(|d| !d.3).take(self.x.win - 1).map(|d| d.2.clone()).collect();
-            if let Some(last) = self.usbl_innovations.last() {
-                it.push(last.clone());
-            }
-            if let Some(s) = gating::imu_noise_scale(&it)? {
-                self.set_imu_scale(s);
-            }
-            return Ok(());
-        }
-        for (i, (inn, m)) in self.usbl_innovations.iter().zip(&self.inn_meta).enumerate() {
-            if m.2 {
-                continue;
-            }
-            if self.x.excl && (m.1 || (i > 0 && self.inn_meta[i - 1].1)) {
-                continue;
-            }
-            items.push(inn.clone());
-        }
-        if let Ok(v) = std::env::var("X_SFIX") {
-            let s: f64 = v.parse().unwrap_or(1.0);
-            self.set_imu_scale(s);
-            return Ok(());
-        }
-        if let Some(s) = gating::imu_noise_scale(&items)? {
-            let s = s.min(self.imu_scale * self.x.cap);
-            self.set_imu_scale(s);
-        }
-        Ok(())
-    }
-
-    /// scratch: the delayed decision on the fix before the newest
-    fn delayed_decision(&mut self) -> Result<(), FgoError> {
-        if self.x.delay == 0 || !(self.cfg.gating.enabled && self.cfg.gating.adaptive) {
-            return Ok(());
-        }
-        let fixes: Vec<(usize, f64, f64)> = self
-            .factors
-            .iter()
-            .enumerate()
-            .filter_map(|(i, f)| if let Factor::Usbl(u) = f { Some((i, self.times[u.node], u.kappa)) } else { None })
-            .collect();
-        if fixes.len() < 2 {
-            return Ok(());
-        }
-        let mut order: Vec<usize> = (0..fixes.len()).collect();
-        order.sort_by(|a, b| fixes[*a].1.total_cmp(&fixes[*b].1));
-        let (kn, kp) = (order[order.len() - 1], order[order.len() - 2]);
-        let (fi, t_k, kappa_k) = fixes[kp];
-        let t_new = fixes[kn].1;
-        if kappa_k >= gating::OUTLIER_KAPPA {
-            return Ok(());
-        }
-        let inn = gating::deletion_innovations(&self.nodes, &self.factors, self.window_scale())?;
-        if self.x.delay == 4 {
-            return self.delayed_local(fi, t_k, kappa_k, kp, kn, &inn);
-        }
-        if self.x.delay == 5 {
-            return self.delayed_neighbours(fi, t_k, kappa_k, kp, kn, &order, &inn);
-        }
-        let s = self.imu_scale;
-        let g = inn[kp].gamma_at(s)?;
-        let gammas = self.usbl_innovations.iter().map(|i| i.gamma_at(s)).collect::<Result<Vec<f64>, FgoError>>()?;
-        let rs = gating::robust_scale(&gammas, 3)?;
-        let thr = chi2_q3(self.cfg.gating.confidence)?;
-        let mut fail = g / rs > self.x.dthr * thr;
-        let prev_failed = self.delayed.last().is_some_and(|d| if self.x.delay >= 2 { d.2 } else { d.1 });
-        let mut cv = (0.0, 0.0);
-        if self.x.delay >= 2 {
-            // cross-validation: is the newest fix predicted better without fix k?
-            let saved = self.nodes.clone();
-            let saved_f = self.factors[fi].clone();
-            if let Factor::Usbl(u) = &mut self.factors[fi] {
-                u.noise = u.noise.scaled(gating::OUTLIER_KAPPA / u.kappa);
-                u.kappa = gating::OUTLIER_KAPPA;
-            }
-            let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
-            solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-            let inn2 = gating::deletion_innovations(&self.nodes, &self.factors, self.window_scale())?;
-            let h = |v: &DVector<f64>| (v[0] * v[0] + v[1] * v[1]).sqrt();
-            cv = (h(&inn[kn].r), h(&inn2[kn].r));
-            self.factors[fi] = saved_f;
-            self.nodes = saved;
-            let better = cv.1 < self.x.cv * cv.0;
-            fail = if self.x.delay == 3 { fail && better } else { better };
-        }
-        let mut out = fail && !(self.x.iso && prev_failed);
-        if out {
-            let saved = self.nodes.clone();
-            if let Factor::Usbl(u) = &mut self.factors[fi] {
-                u.noise = u.noise.scaled(gating::OUTLIER_KAPPA / u.kappa);
-                u.kappa = gating::OUTLIER_KAPPA;
-            }
-            let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
-            solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-            let inn2 = gating::deletion_innovations(&self.nodes, &self.factors, self.window_scale())?;
-            let g_new = inn2[kn].gamma_at(s)?;
-            if self.x.pass && g_new / rs > thr {
-                if let Factor::Usbl(u) = &mut self.factors[fi] {
-                    u.noise = u.noise.scaled(kappa_k / u.kappa);
-                    u.kappa = kappa_k;
-                }
-                self.nodes = saved;
-                out = false;
-            } else {
-                if self.x.repl {
-                    let n = self.inn_meta.len();
-                    for m in self.inn_meta.iter_mut() {
-                        if (m.0 - t_k).abs() < 1e-9 {
-                            m.2 = true;
-                        }
-                    }
-                    if n > 0 && (self.inn_meta[n - 1].0 - t_new).abs() < 1e-9 {
-                        self.usbl_innovations[n - 1] = inn2[kn].clone();
-                    }
-                    self.update_scale()?;
-                    solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-                }
-                let last = self.nodes.len() - 1;
-                if let Some(r) = self.realtime.last_mut() {
-                    r.state = self.nodes[last];
-                }
-            }
-        }
-        if std::env::var_os("X_PRINT").is_some() {
-            println!(
-                "DEL {t_k:.3} g {g:.1} rs {rs:.2} s {s:.1} |r| {:.1} cv {:.1} {:.1} fail {fail} prev_failed {prev_failed} out {out}",
-                inn[kp].r.norm(),
-                cv.0,
-                cv.1
-            );
-        }
-        self.delayed.push((t_k, fail, out));
-        Ok(())
-    }
-
-    fn window_scale(&self) -> f64 {
-        if self.x.s1 { 1.0 } else { self.imu_scale }
-    }
-
-    /// scratch: fix k against its neighbours' deletion test values with k taken out
-    #[allow(clippy::too_many_arguments)]
-    fn delayed_neighbours(
-        &mut self,
-        fi: usize,
-        t_k: f64,
-        kappa_k: f64,
-        kp: usize,
-        kn: usize,
-        order: &[usize],
-        inn: &[gating::Innovation],
-    ) -> Result<(), FgoError> {
-        let ws = self.window_scale();
-        let gk = inn[kp].gamma_at(ws)?;
-        let thr = chi2_q3(self.cfg.gating.confidence)?;
-        let saved = self.nodes.clone();
-        let set = |f: &mut Factor, k: f64| {
-            if let Factor::Usbl(u) = f {
-                u.noise = u.noise.scaled(k / u.kappa);
-                u.kappa = k;
-            }
-        };
-        set(&mut self.factors[fi], gating::OUTLIER_KAPPA);
-        let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
-        solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-        let inn2 = gating::deletion_innovations(&self.nodes, &self.factors, ws)?;
-        // neighbours: the window's fixes before k that are in (not out)
-        let kappas: Vec<f64> = self.factors.iter().filter_map(|f| if let Factor::Usbl(u) = f { Some(u.kappa) } else { None }).collect();
-        let mut gn = Vec::new();
-        for &j in order {
-            if j != kp && j != kn && kappas[j] < gating::OUTLIER_KAPPA {
-                gn.push(inn2[j].gamma_at(ws)?);
-            }
-        }
-        let gmax = gn.iter().copied().fold(0.0f64, f64::max);
-        let s_ok = if std::env::var_os("X_GTEST").is_some() {
-            let gammas = self.usbl_innovations.iter().map(|i| i.gamma_at(self.imu_scale)).collect::<Result<Vec<f64>, FgoError>>()?;
-            let rs = gating::robust_scale(&gammas, 3)?;
-            inn[kp].gamma_at(self.imu_scale)? / rs > thr
-        } else {
-            gk > thr
-        };
-        let fail = !gn.is_empty() && s_ok && gk > self.x.a * self.x.a * gmax;
-        let prev_out = self.dec.last().is_some_and(|d| d.3);
-        let out = fail && !(self.x.iso && prev_out);
-        if out {
-            if self.x.repl {
-                let t_new = self.times[self.nodes.len() - 1];
-                let n = self.inn_meta.len();
-                for m in self.inn_meta.iter_mut() {
-                    if (m.0 - t_k).abs() < 1e-9 {
-                        m.2 = true;
-                    }
-                }
-                if n > 0 && (self.inn_meta[n - 1].0 - t_new).abs() < 1e-6 {
-                    self.usbl_innovations[n - 1] = inn2[kn].clone();
-                }
-                self.update_scale()?;
-                solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-            }
-            let last = self.nodes.len() - 1;
-            if let Some(r) = self.realtime.last_mut() {
-                r.state = self.nodes[last];
-            }
-        } else {
-            set(&mut self.factors[fi], kappa_k);
-            self.nodes = saved;
-        }
-        if std::env::var_os("X_PRINT").is_some() {
-            println!("DEL {t_k:.3} gk {gk:.1} gn {gn:?} out {out}");
-        }
-        let h = |v: &DVector<f64>| (v[0] * v[0] + v[1] * v[1]).sqrt();
-        self.dec.push((t_k, h(&inn[kp].r), inn[kp].clone(), out));
-        self.delayed.push((t_k, fail, out));
-        Ok(())
-    }
-
-    fn delayed_local(
-        &mut self,
-        fi: usize,
-        t_k: f64,
-        kappa_k: f64,
-        kp: usize,
-        kn: usize,
-        inn: &[gating::Innovation],
-    ) -> Result<(), FgoError> {
-        let h = |v: &DVector<f64>| (v[0] * v[0] + v[1] * v[1]).sqrt();
-        let d0 = h(&inn[kp].r);
-        let kept: Vec<gating::Innovation> = self.dec.iter().rev().filter(|d| !d.3).take(30).map(|d| d.2.clone()).collect();
-        let s_del = gating::imu_noise_scale(&kept)?.unwrap_or(1.0);
-        let g = inn[kp].gamma_at(s_del)?;
-        let thr = chi2_q3(self.cfg.gating.confidence)?;
-        // local level: the kept fixes before k-1
-        let n = self.dec.len();
-        let loc: Vec<f64> = self.dec[..n.saturating_sub(1)].iter().rev().filter(|d| !d.3).take(self.x.nloc).map(|d| d.1).collect();
-        let l = loc.iter().copied().fold(0.0f64, f64::max);
-        let huber = std::env::var_os("X_HUBER").is_some();
-        let local_ok = if self.x.a > 0.0 { loc.len() == self.x.nloc && d0 > self.x.a * l } else { true };
-        let fail = kept.len() >= gating::ADAPT_MIN && g > thr && local_ok;
-        let prev_out = self.dec.last().is_some_and(|d| d.3);
-        let out = fail && !(self.x.iso && prev_out);
-        let _ = kappa_k;
-        if out {
-            // Huber: inflate until the deletion test at s_del equals the threshold
-            let new_kappa = if huber {
-                let i = &inn[kp];
-                let gk = |k: f64| -> Result<f64, FgoError> {
-                    let m = &i.hph * (s_del / i.imu_scale) + &i.r_cov * k;
-                    let m = (&m + m.transpose()) * 0.5;
-                    let c = m.cholesky().ok_or_else(|| FgoError::Numeric("huber".into()))?;
-                    Ok(i.r.dot(&c.solve(&i.r)))
-                };
-                let (mut lo, mut hi) = (0.0f64, gating::OUTLIER_KAPPA.ln());
-                while hi - lo > 0.01 {
-                    let mid = 0.5 * (lo + hi);
-                    if gk(mid.exp())? > thr { lo = mid } else { hi = mid }
-                }
-                hi.exp()
-            } else {
-                gating::OUTLIER_KAPPA
-            };
-            if let Factor::Usbl(u) = &mut self.factors[fi] {
-                u.noise = u.noise.scaled(new_kappa / u.kappa);
-                u.kappa = new_kappa;
-            }
-            let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
-            solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-            if self.x.repl {
-                let t_new = self.times[self.nodes.len() - 1];
-                let inn2 = gating::deletion_innovations(&self.nodes, &self.factors, self.window_scale())?;
-                let n = self.inn_meta.len();
-                for m in self.inn_meta.iter_mut() {
-                    if (m.0 - t_k).abs() < 1e-9 {
-                        m.2 = true;
-                    }
-                }
-                if n > 0 && (self.inn_meta[n - 1].0 - t_new).abs() < 1e-6 {
-                    self.usbl_innovations[n - 1] = inn2[kn].clone();
-                }
-                self.update_scale()?;
-                solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
-            }
-            let last = self.nodes.len() - 1;
-            if let Some(r) = self.realtime.last_mut() {
-                r.state = self.nodes[last];
-            }
-        }
-        if std::env::var_os("X_PRINT").is_some() {
-            println!("DEL {t_k:.3} d0 {d0:.1} L {l:.1} g {g:.1} s_del {s_del:.1} out {out}");
-        }
-        self.dec.push((t_k, d0, inn[kp].clone(), out));
-        self.delayed.push((t_k, fail, out));
-        Ok(())
-    }
-
     /// The IMU noise scale of new and window IMU factors.
     fn set_imu_scale(&mut self, s: f64) {
-        if self.x.s1 {
-            self.imu_scale = s;
-            return;
-        }
         self.imu_scale = s;
         self.factors.iter_mut().for_each(|f| f.set_imu_noise_scale(s));
     }
@@ -810,10 +423,6 @@ impl Smoother {
         });
         self.gated_add(t_valid, Sensor::Usbl, f, k)?;
         self.optimize_and_marginalize()?;
-        self.delayed_decision()?;
-        if std::env::var_os("SUBNAV_DIAG").is_some() {
-            self.diag(t_valid)?;
-        }
         self.latency_s.push(start.elapsed().as_secs_f64());
         if let (Some(a), Some(b)) = (cpu0, thread_cpu_s()) {
             self.cpu_s.push(b - a);
