@@ -6,7 +6,9 @@
 //! [-- --duration-s S] [--fix-every K] [--gates-only]`
 //! `--gates-only`: only the gate table (graph, seed's fixed gate vs adaptive vs off; no peer, no
 //! filter). `--jump-seeds N`: the 20 % jumps case drawn with seeds 1..=N, gate on and off (the
-//! table's jumps rows are seed 1: one draw of 8 jumps).
+//! table's jumps rows are seed 1: one draw of 8 jumps); `--first-seed K`: seeds K..K+N-1 instead
+//! (other draws, to check a rule chosen on 1..=N); `--oracle`: the gate-on runs take each jumped
+//! fix out when the next fix arrives (`kitti_run::Oracle::NextFix`, evaluation only).
 //! The data is read from that python's installed gtsam wheel (never copied).
 
 use std::path::PathBuf;
@@ -33,7 +35,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/peers/gtsam_kitti.py");
     if let Some(n) = arg("--jump-seeds") {
-        return jump_seeds(&data, &base, n.parse()?);
+        let first = arg("--first-seed").map_or(Ok(1), |k| k.parse())?;
+        let oracle = if std::env::args().any(|a| a == "--oracle") { Oracle::NextFix } else { Oracle::None };
+        return jump_seeds(&data, &base, first, n.parse()?, oracle);
     }
     if std::env::args().any(|a| a == "--gates-only") {
         return gate_table(&data, &base);
@@ -234,18 +238,25 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
     Ok(())
 }
 
-/// The jumps case (20 % of the fixes, 10-20 m) over `n` draws: held-out RMSE of the batch and
-/// the real time, adaptive gate and off, per seed and the mean.
-fn jump_seeds(data: &kitti::KittiData, base: &KittiConfig, n: u64) -> Result<(), Box<dyn std::error::Error>> {
-    println!("| seed | jumps | batch on | batch off | real time on | real time off |\n|---|---|---|---|---|---|");
+/// The jumps case (20 % of the fixes, 10-20 m) over `n` draws from seed `first` on: held-out
+/// RMSE of the batch and the real time, adaptive gate and off, per seed and the mean; with
+/// `oracle` the gate-on runs also take out the jumped fixes as it says.
+fn jump_seeds(data: &kitti::KittiData, base: &KittiConfig, first: u64, n: u64, oracle: Oracle) -> Result<(), Box<dyn std::error::Error>> {
+    let on = if oracle == Oracle::None { "on" } else { "on + oracle" };
+    println!("| seed | jumps | batch {on} | batch off | real time {on} | real time off |\n|---|---|---|---|---|---|");
     let mut sum = [0.0f64; 4];
     let (mut b_wins, mut t_wins) = (0, 0);
-    for seed in 1..=n {
+    for seed in first..first + n {
         let faults = Faults { jump_probability: 0.2, jump_m: 20.0, seed, ..Default::default() };
         let mut row = Vec::new();
         let mut jumps = 0;
         for enabled in [true, false] {
-            let cfg = KittiConfig { faults: faults.clone(), gating: GatingConfig { enabled, ..Default::default() }, ..base.clone() };
+            let cfg = KittiConfig {
+                faults: faults.clone(),
+                gating: GatingConfig { enabled, ..Default::default() },
+                oracle: if enabled { oracle } else { Oracle::None },
+                ..base.clone()
+            };
             let sc = kitti_run::scenario(data, &cfg)?;
             jumps = sc.epochs.iter().filter(|e| e.jumped).count();
             let r = kitti_run::run_graph(data, &sc, &cfg)?;
@@ -262,6 +273,6 @@ fn jump_seeds(data: &kitti::KittiData, base: &KittiConfig, n: u64) -> Result<(),
     }
     let m = |i: usize| sum[i] / n as f64;
     println!("| mean | | {:.3} | {:.3} | {:.3} | {:.3} |", m(0), m(1), m(2), m(3));
-    println!("gate on better than off: batch in {b_wins} of {n} draws, real time in {t_wins} of {n}");
+    println!("gate {on} better than off: batch in {b_wins} of {n} draws, real time in {t_wins} of {n}");
     Ok(())
 }
