@@ -49,8 +49,18 @@ fn cli_text_json_and_report_give_the_same_figures() {
     let figures = [
         ("heading RMSE", after(heading, "RMSE"), jf("heading_rmse_deg", 3), row(&md, "heading RMSE (converged)")),
         ("heading max", after(heading, "max"), jf("heading_max_abs_err_deg", 3), row(&md, "heading max (converged)")),
-        ("heading within 3 sigma", before(heading, "% within"), jp("heading_within_3_sigma"), row(&md, "heading within 3 sigma (converged)")),
-        ("heading RMSE all aided", after(heading, "all aided: RMSE"), jf("heading_rmse_all_aided_deg", 2), row(&md, "heading RMSE (all aided)")),
+        (
+            "heading within 3 sigma",
+            before(heading, "% within"),
+            jp("heading_within_3_sigma"),
+            row(&md, "heading within 3 sigma (converged)"),
+        ),
+        (
+            "heading RMSE all aided",
+            after(heading, "all aided: RMSE"),
+            jf("heading_rmse_all_aided_deg", 2),
+            row(&md, "heading RMSE (all aided)"),
+        ),
         ("horizontal RMS", after(position, "RMS"), jf("horizontal_rms_err_m", 2), row(&md, "horizontal RMS")),
         ("horizontal final", after(position, "final"), jf("horizontal_final_err_m", 2), row(&md, "horizontal final")),
         ("horizontal max", after(position, "max"), jf("horizontal_max_err_m", 2), row(&md, "horizontal max")),

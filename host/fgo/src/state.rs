@@ -97,7 +97,6 @@ impl NodeState {
     }
 }
 
-
 /// ENU <-> NED axis swap `T` (its own inverse).
 pub fn t_enu_ned() -> Matrix3<f64> {
     Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0)

@@ -211,4 +211,3 @@ pub fn symmetrize(p: &mut DMatrix<f64>) {
     *p += t;
     *p *= 0.5;
 }
-

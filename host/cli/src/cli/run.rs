@@ -17,8 +17,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::Format;
 use subnav_link::export::TimeBase;
-use subnav_sil::Scenario;
 use subnav_link::record::session::{TruthRow, truth_csv};
+use subnav_sil::Scenario;
 use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_rows};
 use subnav_sil::sil::{run_native_live, run_native_scored};
 
@@ -319,8 +319,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
     let truth = truth_rows(&sc, 0.1);
     let truth_path = args.truth.clone().or_else(|| args.report.as_ref().map(|d| d.join("truth.csv")));
     if let Some(p) = &truth_path {
-        subnav_link::output::write_atomic(p, truth_csv(&truth).as_bytes())
-            .with_context(|| format!("writing the truth {}", p.display()))?;
+        subnav_link::output::write_atomic(p, truth_csv(&truth).as_bytes()).with_context(|| format!("writing the truth {}", p.display()))?;
     }
     match format {
         Format::Json => println!("{}", serde_json::to_string(&result)?),
