@@ -27,6 +27,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use subnav_topo::live::{CameraFrame, Closure, FrameOutcome, LiveConfig, LiveMapper, LiveNode, LiveStats, NavSample};
+use subnav_topo::live_eval::{MapScore, MapScoreConfig, MapScorer};
 use subnav_wire::{Downlink, NavMode, Uplink};
 
 use crate::chips::camera::CameraCapture;
@@ -52,6 +53,8 @@ pub struct MapLoopConfig {
 #[derive(Debug, Clone, Serialize, Default)]
 pub struct MapLoopReport {
     pub mapper: LiveStats,
+    /// The map against the simulator's truth (`subnav_topo::live_eval`: precision, recall).
+    pub score: MapScore,
     /// Camera frames handed over, and those whose trigger message never came.
     pub captures: u64,
     pub captures_without_trigger: u64,
@@ -70,6 +73,8 @@ pub struct MapLoopReport {
 
 struct State {
     mapper: LiveMapper,
+    /// Scores the mapper's events against the camera's truth (outside the mapper).
+    scorer: MapScorer,
     /// Frame number -> trigger time (µs), from the head's telemetry.
     triggers: BTreeMap<u32, u64>,
     /// Frames waiting for processing, with the simulator's exposure time.
@@ -108,6 +113,7 @@ impl MapLoop {
     pub fn new(cfg: MapLoopConfig) -> Self {
         let state = State {
             mapper: LiveMapper::new(cfg.live),
+            scorer: MapScorer::new(&cfg.live, MapScoreConfig::default()),
             triggers: BTreeMap::new(),
             captures: VecDeque::new(),
             latest_nav_us: None,
@@ -199,8 +205,10 @@ impl MapLoop {
                 s.report.captures_without_trigger += 1;
                 continue;
             };
-            let frame = CameraFrame { frame: cap.frame, t_us, features: cap.image.features, truth_ned_m: Some(cap.image.truth_ne_m) };
-            let outcome = s.mapper.on_frame(&frame);
+            let frame = CameraFrame { frame: cap.frame, t_us, features: cap.image.features };
+            let truth = Some(cap.image.truth_ne_m);
+            let State { mapper, scorer, .. } = &mut *s;
+            let outcome = mapper.on_frame_observed(&frame, &mut |e| scorer.on_event(&e, truth));
             if let FrameOutcome::Fix(fix) = outcome {
                 if self.cfg.send_fixes {
                     let seq = s.next_seq;
@@ -231,6 +239,7 @@ impl MapLoop {
         let s = self.lock();
         let mut r = s.report.clone();
         r.mapper = s.mapper.stats();
+        r.score = s.scorer.score();
         r.nodes = s.mapper.nodes().to_vec();
         r.closures = s.mapper.closures().to_vec();
         r

@@ -39,8 +39,8 @@ fn closed_loop_dive_recognises_its_own_track_within_bounds() {
         r.within_3_sigma,
         s.nodes,
         s.recognitions,
-        s.precision,
-        s.recall,
+        m.score.precision,
+        m.score.recall,
         m.fixes_accepted,
         m.fixes_sent,
         m.fixes_refused
@@ -54,8 +54,8 @@ fn closed_loop_dive_recognises_its_own_track_within_bounds() {
     assert!(s.recognitions >= 100, "{} recognitions", s.recognitions);
     assert!(m.fixes_accepted >= 3, "{} fixes accepted", m.fixes_accepted);
     assert_eq!(m.fixes_refused, 0);
-    assert!(s.precision.is_some_and(|p| p >= 0.85), "precision {:?}", s.precision);
-    assert!(s.recall.is_some_and(|p| p >= 0.2), "recall {:?}", s.recall);
+    assert!(m.score.precision.is_some_and(|p| p >= 0.85), "precision {:?}", m.score.precision);
+    assert!(m.score.recall.is_some_and(|p| p >= 0.2), "recall {:?}", m.score.recall);
     // Every fix the head answered is one the map sent; none is refused for its time.
     assert_eq!(m.fixes_accepted + m.fixes_refused, m.fixes_sent);
     assert_eq!(m.fix_results.len() as u64, m.fixes_sent);
@@ -89,6 +89,6 @@ fn camera_faults_are_counted_and_far_images_refused() {
     assert!(m.nodes.iter().any(|n| n.created_t_us > 360_000_000 && n.created_t_us < 420_000_000), "no node right after the blackout");
     // About 5 % of ~1,700 frames show a far place; the gate refuses those that look like a node.
     assert!(s.gate_refusals > 0);
-    assert!(s.precision.is_none_or(|p| p >= 0.85), "precision {:?}", s.precision);
+    assert!(m.score.precision.is_none_or(|p| p >= 0.85), "precision {:?}", m.score.precision);
     assert!(r.horizontal_max_err_m <= 3.0 && r.within_3_sigma >= 0.95, "max {} within {}", r.horizontal_max_err_m, r.within_3_sigma);
 }

@@ -14,7 +14,8 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
-use subnav_topo::live::{CameraFrame, FrameOutcome, LiveConfig, LiveMapper, NavSample, Refusal};
+use subnav_topo::live::{CameraFrame, FrameOutcome, LiveConfig, NavSample, Refusal};
+use subnav_topo::live_eval::ScoredMapper;
 use subnav_topo::polar_image::N_FEATURES;
 
 const LINE_M: f64 = 600.0;
@@ -44,7 +45,7 @@ fn nav(t_us: u64, p: [f64; 2]) -> NavSample {
 }
 
 struct Sim {
-    m: LiveMapper,
+    m: ScoredMapper,
     t_us: u64,
     frame: u32,
     rng: ChaCha8Rng,
@@ -53,7 +54,7 @@ struct Sim {
 /// Survey until the map holds `nodes` nodes.
 fn build(nodes: usize) -> Sim {
     let cfg = LiveConfig { max_nodes: nodes, train_after_nodes: 40, ..LiveConfig::default() };
-    let mut sim = Sim { m: LiveMapper::new(cfg), t_us: 0, frame: 0, rng: ChaCha8Rng::seed_from_u64(1) };
+    let mut sim = Sim { m: ScoredMapper::new(cfg), t_us: 0, frame: 0, rng: ChaCha8Rng::seed_from_u64(1) };
     let started = std::time::Instant::now();
     let mut trained_after = None;
     while sim.m.nodes().len() < nodes {
@@ -64,7 +65,7 @@ fn build(nodes: usize) -> Sim {
         }
         let p = lawnmower(SPEED_MPS * t_s);
         let f = place_features(p, &mut sim.rng);
-        sim.m.on_frame(&CameraFrame { frame: sim.frame, t_us: sim.t_us, features: Some(f), truth_ned_m: Some(p) });
+        sim.m.on_frame(&CameraFrame { frame: sim.frame, t_us: sim.t_us, features: Some(f) }, Some(p));
         if trained_after.is_none() && sim.m.stats().trained {
             trained_after = Some(started.elapsed());
         }
@@ -79,7 +80,7 @@ fn build(nodes: usize) -> Sim {
         started.elapsed().as_secs_f64(),
         trained_after.map_or(f64::NAN, |d| d.as_secs_f64()),
         s.recognitions,
-        s.precision,
+        sim.m.score().precision,
         s.fixes
     );
     sim
@@ -89,13 +90,13 @@ fn bench(c: &mut Criterion) {
     for nodes in [1_200usize, 8_192] {
         let mut sim = build(nodes);
         // Hover over the place of node 10 (placed long ago: its gate passes, its samples match).
-        let here = sim.m.nodes()[10].truth_ned_m.expect("truth");
+        let here = sim.m.scorer.node_truth(10).expect("truth");
         let pool: Vec<[f64; N_FEATURES]> = (0..64).map(|_| place_features(here, &mut sim.rng)).collect();
         let step = |sim: &mut Sim, i: usize| {
             sim.t_us += 500_000;
             sim.frame += 1;
             sim.m.on_nav(nav(sim.t_us, here));
-            sim.m.on_frame(&CameraFrame { frame: sim.frame, t_us: sim.t_us, features: Some(pool[i % pool.len()]), truth_ned_m: None })
+            sim.m.mapper.on_frame(&CameraFrame { frame: sim.frame, t_us: sim.t_us, features: Some(pool[i % pool.len()]) })
         };
         // The jump to the hover point places a node; let it collect its samples.
         for i in 0..10 {

@@ -4,7 +4,8 @@
 //! ([`slam`]), a simulated survey with revisits and its evaluation ([`survey`]), and map export
 //! (JSON, GraphML, a PNG plot of the graph over the trajectory: [`export`]); and the online mapper
 //! fed by the firmware's own navigation solution, whose loop-closure fixes are the equivalent
-//! independent measurements the firmware can fuse ([`live`]).
+//! independent measurements the firmware can fuse ([`live`]; it carries no truth: a simulation
+//! scores its events against the truth with [`live_eval`], outside it).
 //!
 //! The online mapper of the closed loop ([`live`]) is fed by the firmware's own navigation
 //! solution and sends its fixes to the head (`subnav_sil::map_loop`); the offline survey
@@ -12,6 +13,7 @@
 
 pub mod export;
 pub mod live;
+pub mod live_eval;
 pub mod lmnn;
 pub mod map;
 pub mod polar_image;

@@ -9,6 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use subnav_topo::live::fix::{equivalent_fix, kalman_update, sym, tri};
 use subnav_topo::live::*;
+use subnav_topo::live_eval::ScoredMapper;
 use subnav_topo::polar_image::{N_FEATURES, demosaic, features, stokes};
 use subnav_topo::scene::{Scene, SceneConfig, coastal_water};
 use subnav_topo::survey::Racetrack;
@@ -213,7 +214,7 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
     let sun = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), -el.sin());
     let scene = Scene::new(SceneConfig::default(), coastal_water(), sun, track.depth_m, &mut rng);
     let cfg = LiveConfig { train_after_nodes: 24, ..LiveConfig::default() };
-    let mut mapper = LiveMapper::new(cfg);
+    let mut mapper = ScoredMapper::new(cfg);
     let q = 0.02;
     let mut fw = Firmware::new(0.25, q, &mut rng);
     let mut dr = Firmware { err: fw.err, p: fw.p, q_m2ps: q };
@@ -229,9 +230,9 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
             let (truth, yaw) = track.at(t_us as f64 * 1e-6);
             let mosaic = scene.render(truth[0], truth[1], yaw, &mut rng);
             let f: [f64; N_FEATURES] = features(&stokes(&demosaic(&mosaic)));
-            let frame = CameraFrame { frame: frame_no, t_us, features: Some(f), truth_ned_m: Some(truth) };
+            let frame = CameraFrame { frame: frame_no, t_us, features: Some(f) };
             frame_no += 1;
-            if let FrameOutcome::Fix(fix) = mapper.on_frame(&frame) {
+            if let FrameOutcome::Fix(fix) = mapper.on_frame(&frame, Some(truth)) {
                 // The downlink command carries the fix and the firmware's own depth (uninformative).
                 let cmd = fix.to_command(fix.prior_depth_m, 1e4);
                 let subnav_wire::Command::PositionFix { t_us: ct, pos_ned_m, cov_ned_m2 } = cmd else { panic!("{cmd:?}") };
@@ -256,7 +257,7 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
         fw.step(nav_dt_us as f64 * 1e-6, w);
         dr.step(nav_dt_us as f64 * 1e-6, w);
     }
-    let s = mapper.stats();
+    let (s, sc) = (mapper.stats(), mapper.score());
     let (rms_fw, rms_dr) = ((sq_fw / n_last as f64).sqrt(), (sq_dr / n_last as f64).sqrt());
     println!("{}", serde_json::to_string_pretty(&s).unwrap());
     println!(
@@ -268,8 +269,8 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
     );
     assert!(s.trained, "the metric was never learned");
     assert!(s.recognitions >= 10, "too few recognitions: {}", s.recognitions);
-    assert!(s.precision.is_some_and(|p| p >= 0.9), "precision {:?}", s.precision);
-    assert!(s.recall.is_some_and(|r| r > 0.2), "recall {:?}", s.recall);
+    assert!(sc.precision.is_some_and(|p| p >= 0.9), "precision {:?}", sc.precision);
+    assert!(sc.recall.is_some_and(|r| r > 0.2), "recall {:?}", sc.recall);
     assert!(fixes >= 5 && s.fixes == fixes as u64, "fixes {fixes}, stats {}", s.fixes);
     assert_eq!(mapper.closures().len(), fixes);
     assert!(rms_fw < 0.7 * rms_dr, "the fixes should reduce the error: {rms_fw} m vs {rms_dr} m without");
@@ -282,7 +283,7 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
     let far = mapper
         .nodes()
         .iter()
-        .filter(|n| n.truth_ned_m.is_some_and(|p| (p[0] - here[0]).hypot(p[1] - here[1]) > 30.0) && !n.samples.is_empty())
+        .filter(|n| mapper.scorer.node_truth(n.id).is_some_and(|p| (p[0] - here[0]).hypot(p[1] - here[1]) > 30.0) && !n.samples.is_empty())
         .max_by(|a, b| {
             let d = |n: &LiveNode| (n.pos_ned_m[0] - here[0]).hypot(n.pos_ned_m[1] - here[1]);
             d(a).total_cmp(&d(b))
@@ -291,7 +292,7 @@ fn rendered_racetrack_closes_loops_through_the_firmware() {
     let (far_id, copied) = (far.id, far.samples[0]);
     let refusals = s.gate_refusals;
     mapper.on_nav(fw.sample(t_us, here));
-    let out = mapper.on_frame(&CameraFrame { frame: frame_no, t_us, features: Some(copied), truth_ned_m: Some(here) });
+    let out = mapper.on_frame(&CameraFrame { frame: frame_no, t_us, features: Some(copied) }, Some(here));
     println!("copied features of node {far_id}: {out:?}");
     assert_eq!(mapper.stats().gate_refusals, refusals + 1, "{out:?}");
     assert!(!matches!(out, FrameOutcome::Fix(f) if f.node == far_id), "{out:?}");
@@ -317,7 +318,7 @@ fn holding_a_recognition_for_its_best_frame_finds_the_place_closer() {
         let scene = Scene::new(SceneConfig::default(), coastal_water(), sun, track.depth_m, &mut rng);
         // Drift floored at 1 m^2 so that fixes are computed although the navigation is good.
         let cfg = LiveConfig { train_after_nodes: 24, min_drift_m2: 1.0, best_match_hold_s: hold_s, ..LiveConfig::default() };
-        let mut mapper = LiveMapper::new(cfg);
+        let mut mapper = ScoredMapper::new(cfg);
         let fw = Firmware::new(1.0, 1e-6, &mut rng);
         let (mut offsets, mut frame_no, mut t_us) = (Vec::new(), 0u32, 0u64);
         while t_us as f64 * 1e-6 <= duration_s {
@@ -325,9 +326,7 @@ fn holding_a_recognition_for_its_best_frame_finds_the_place_closer() {
             mapper.on_nav(fw.sample(t_us, truth));
             if t_us % 500_000 == 0 {
                 let f: [f64; N_FEATURES] = features(&stokes(&demosaic(&scene.render(truth[0], truth[1], yaw, &mut rng))));
-                if let FrameOutcome::Fix(fix) =
-                    mapper.on_frame(&CameraFrame { frame: frame_no, t_us, features: Some(f), truth_ned_m: Some(truth) })
-                {
+                if let FrameOutcome::Fix(fix) = mapper.on_frame(&CameraFrame { frame: frame_no, t_us, features: Some(f) }, Some(truth)) {
                     offsets.push((fix.place_ne_m[0] - fix.prior_ne_m[0]).hypot(fix.place_ne_m[1] - fix.prior_ne_m[1]));
                 }
                 frame_no += 1;
@@ -378,7 +377,6 @@ fn bad_input_is_counted_and_survived() {
         frame: n,
         t_us,
         features: Some(place_features(square(t_us as f64 * 1e-6), rng)),
-        truth_ned_m: None,
     };
     // No nav yet: retry later, nothing counted.
     assert_eq!(m.on_frame(&frame(0, 0, &mut rng)), FrameOutcome::NeedNav);
@@ -517,7 +515,7 @@ fn fixes_need_drift_since_the_node_and_nan_never_comes_out() {
     for (drift, want_fixes) in [(0.02, true), (0.0, false)] {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let cfg = LiveConfig { train_after_nodes: 20, ..LiveConfig::default() };
-        let mut m = LiveMapper::new(cfg);
+        let mut m = ScoredMapper::new(cfg);
         let mut fixes = Vec::new();
         let mut nav_t = 0u64;
         for k in 0..(3 * 240u32) {
@@ -527,7 +525,7 @@ fn fixes_need_drift_since_the_node_and_nan_never_comes_out() {
                 nav_t += 100_000;
             }
             let p = square(t as f64 * 1e-6);
-            let out = m.on_frame(&CameraFrame { frame: k, t_us: t, features: Some(place_features(p, &mut rng)), truth_ned_m: Some(p) });
+            let out = m.on_frame(&CameraFrame { frame: k, t_us: t, features: Some(place_features(p, &mut rng)) }, Some(p));
             if let FrameOutcome::Fix(f) = out {
                 assert!(f.pos_ne_m.iter().chain(f.cov_ne_m2.iter()).all(|v| v.is_finite()));
                 let c = sym(f.cov_ne_m2);
@@ -538,7 +536,7 @@ fn fixes_need_drift_since_the_node_and_nan_never_comes_out() {
         let s = m.stats();
         println!("drift {drift}: {}", serde_json::to_string(&s).unwrap());
         assert!(s.trained && s.recognitions > 20, "{s:?}");
-        assert!(s.precision.is_some_and(|p| p >= 0.9), "{s:?}");
+        assert!(m.score().precision.is_some_and(|p| p >= 0.9), "{s:?} {:?}", m.score());
         if want_fixes {
             assert!(fixes.len() > 5, "{s:?}");
             // Isotropic covariances: the equivalent measurement is never more precise than the
@@ -562,7 +560,7 @@ fn fixes_need_drift_since_the_node_and_nan_never_comes_out() {
 fn no_recognition_through_a_gate_wider_than_the_scene_repeats() {
     let run = |drift_m2ps: f64| {
         let mut rng = ChaCha8Rng::seed_from_u64(21);
-        let mut m = LiveMapper::new(LiveConfig { train_after_nodes: 10, ..LiveConfig::default() });
+        let mut m = ScoredMapper::new(LiveConfig { train_after_nodes: 10, ..LiveConfig::default() });
         let mut nav_t = 0u64;
         for k in 0..480u32 {
             let t_us = u64::from(k) * 500_000;
@@ -571,8 +569,8 @@ fn no_recognition_through_a_gate_wider_than_the_scene_repeats() {
                 nav_t += 100_000;
             }
             let p = square(t_us as f64 * 1e-6);
-            let f = CameraFrame { frame: k, t_us, features: Some(place_features(p, &mut rng)), truth_ned_m: Some(p) };
-            assert_ne!(m.on_frame(&f), FrameOutcome::NeedNav);
+            let f = CameraFrame { frame: k, t_us, features: Some(place_features(p, &mut rng)) };
+            assert_ne!(m.on_frame(&f, Some(p)), FrameOutcome::NeedNav);
         }
         m.stats()
     };
@@ -592,7 +590,7 @@ fn no_recognition_through_a_gate_wider_than_the_scene_repeats() {
 fn no_fix_while_the_firmwares_velocity_is_unaided() {
     let run = |vel_sigma_mps: f64| {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
-        let mut m = LiveMapper::new(LiveConfig { train_after_nodes: 20, ..LiveConfig::default() });
+        let mut m = ScoredMapper::new(LiveConfig { train_after_nodes: 20, ..LiveConfig::default() });
         let (mut fixes, mut nav_t) = (0, 0u64);
         for k in 0..(3 * 240u32) {
             let t = u64::from(k) * 500_000;
@@ -601,7 +599,7 @@ fn no_fix_while_the_firmwares_velocity_is_unaided() {
                 nav_t += 100_000;
             }
             let p = square(t as f64 * 1e-6);
-            let out = m.on_frame(&CameraFrame { frame: k, t_us: t, features: Some(place_features(p, &mut rng)), truth_ned_m: Some(p) });
+            let out = m.on_frame(&CameraFrame { frame: k, t_us: t, features: Some(place_features(p, &mut rng)) }, Some(p));
             fixes += usize::from(matches!(out, FrameOutcome::Fix(_)));
         }
         (fixes, m.stats().clone())

@@ -113,8 +113,8 @@ fn map_cells(r: &DiveResult) -> String {
             m.mapper.nodes,
             m.fixes_accepted,
             m.fixes_sent,
-            m.mapper.precision.unwrap_or(f64::NAN),
-            m.mapper.recall.unwrap_or(f64::NAN)
+            m.score.precision.unwrap_or(f64::NAN),
+            m.score.recall.unwrap_or(f64::NAN)
         ),
         None => format!("{:>5}  {:>11}  {:>9}  {:>6}", "-", "-", "-", "-"),
     }
@@ -442,8 +442,8 @@ fn print_summary(r: &DiveResult) {
             s.nodes,
             s.frames,
             s.recognitions,
-            s.precision.unwrap_or(f64::NAN),
-            s.recall.unwrap_or(f64::NAN),
+            m.score.precision.unwrap_or(f64::NAN),
+            m.score.recall.unwrap_or(f64::NAN),
             s.gate_refusals
         );
         println!(

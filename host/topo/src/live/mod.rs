@@ -94,8 +94,21 @@ pub struct CameraFrame {
     pub frame: u32,
     pub t_us: u64,
     pub features: Option<[f64; N_FEATURES]>,
-    /// Simulations only, for scoring; never used by the estimator.
-    pub truth_ned_m: Option<[f64; 2]>,
+}
+
+/// What the mapper did with a frame, for scoring outside it ([`crate::live_eval`]: a
+/// simulation pairs each event with the truth of the frame it came from).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub enum MapEvent {
+    /// Node `node` was placed at the frame of `t_us`.
+    NodePlaced { node: usize, t_us: u64 },
+    /// The frame of `t_us` was scanned against the map (a recognition attempt).
+    Attempt { t_us: u64 },
+    /// The nearest node overall (of those old enough) matched in appearance; `gate_refused`: its
+    /// position gate refused it.
+    AppearanceMatch { t_us: u64, node: usize, gate_refused: bool },
+    /// The frame of `t_us` recognised node `node` (the nearest gated node below the threshold).
+    Recognised { t_us: u64, node: usize },
 }
 
 /// Tuning.
@@ -136,10 +149,6 @@ pub struct LiveConfig {
     pub nav_reset_samples: usize,
     /// Hard bound on the number of nodes.
     pub max_nodes: usize,
-    /// Scoring (truth given): a recognition is correct within this of the node's truth (m); an
-    /// opportunity is a recognition attempt within `opportunity_radius_m` of some node's truth.
-    pub correct_radius_m: f64,
-    pub opportunity_radius_m: f64,
     /// Floor on the eigenvalues of the drift covariance `D = P1 - P0` (m^2).
     pub min_drift_m2: f64,
     /// Nodes younger than this (s) are not candidates (a revisit, not the place just left).
@@ -191,8 +200,6 @@ impl Default for LiveConfig {
             restart_frames: 3,
             nav_reset_samples: 10,
             max_nodes: 8192,
-            correct_radius_m: 3.0,
-            opportunity_radius_m: 2.0,
             min_drift_m2: 0.01,
             min_revisit_s: 30.0,
             nav_window_s: 30.0,
@@ -357,8 +364,6 @@ pub struct LiveNode {
     pub pos_ned_m: [f64; 2],
     pub cov_ne_m2: [f64; 3],
     pub created_t_us: u64,
-    /// Truth at creation (simulations only; scoring).
-    pub truth_ned_m: Option<[f64; 2]>,
     /// Recognitions of this node, and fixes sent from it.
     pub observations: u32,
     pub fixes: u32,
@@ -380,9 +385,6 @@ pub struct Closure {
     pub vehicle_ne_m: [f64; 2],
     pub fix_ne_m: [f64; 2],
     pub fix_cov_ne_m2: [f64; 3],
-    /// Scoring (truth given): the frame's truth and whether the recognition was correct.
-    pub truth_ned_m: Option<[f64; 2]>,
-    pub correct: Option<bool>,
 }
 
 /// Counters.
@@ -412,13 +414,10 @@ pub struct LiveStats {
     pub match_threshold: f64,
     /// Frames scanned against the map.
     pub recognition_attempts: u64,
-    /// Nearest node overall below the threshold, and how many of those were correct (truth).
+    /// Nearest node overall below the threshold.
     pub appearance_matches: u64,
-    pub appearance_correct: u64,
     /// Appearance matched (nearest overall) but the position gate refused that node.
     pub gate_refusals: u64,
-    /// Scoring: gate refusals of a correct appearance match (what the gate costs in recall).
-    pub gate_refusals_correct: u64,
     /// Of the gate refusals, those because the gate was wider than `max_gate_sigma_m`.
     pub gate_too_wide: u64,
     pub recognitions: u64,
@@ -429,12 +428,6 @@ pub struct LiveStats {
     pub fixes_refused_numeric: u64,
     /// Recognitions sent no fix because the firmware's velocity was unaided.
     pub fixes_refused_velocity: u64,
-    /// Scoring (truth given): correct recognitions, precision, opportunities, recalled ones, recall.
-    pub correct: u64,
-    pub precision: Option<f64>,
-    pub opportunities: u64,
-    pub recalled: u64,
-    pub recall: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -460,7 +453,6 @@ struct Held {
     frame: CameraFrame,
     nav: NavAt,
     gate_d2: f64,
-    correct: Option<bool>,
     first_t_us: u64,
 }
 
@@ -702,6 +694,11 @@ impl LiveMapper {
     /// Process a frame (see [`FrameOutcome`]). Frames must come in counter order; on
     /// [`FrameOutcome::NeedNav`] hold the frame (and the later ones) and call again after more nav.
     pub fn on_frame(&mut self, frame: &CameraFrame) -> FrameOutcome {
+        self.on_frame_observed(frame, &mut |_| {})
+    }
+
+    /// [`Self::on_frame`], telling `events` what it did ([`MapEvent`], in order).
+    pub fn on_frame_observed(&mut self, frame: &CameraFrame, events: &mut dyn FnMut(MapEvent)) -> FrameOutcome {
         let mut restart = false;
         if let Some((last_n, last_t)) = self.last_frame {
             if frame.frame == last_n {
@@ -801,7 +798,7 @@ impl LiveMapper {
         let mut gate_refused = None;
         let mut result = None;
         if self.metric.is_some() {
-            match self.recognise(frame, &f, &nav) {
+            match self.recognise(frame, &f, &nav, events) {
                 Recognition::None => {}
                 Recognition::GateRefused(node, d2) => gate_refused = Some((node, d2)),
                 Recognition::Event(outcome) => {
@@ -820,7 +817,8 @@ impl LiveMapper {
                 self.stats.map_full_events += 1;
                 return FrameOutcome::Ignored { reason: IgnoreReason::MapFull };
             }
-            let id = self.place(t, &nav, frame.truth_ned_m.filter(|p| finite(p)));
+            let id = self.place(t, &nav);
+            events(MapEvent::NodePlaced { node: id, t_us: t });
             return FrameOutcome::Placed { node: id };
         }
         match (gate_refused, self.metric.is_some()) {
@@ -830,7 +828,7 @@ impl LiveMapper {
         }
     }
 
-    fn place(&mut self, t: u64, nav: &NavAt, truth: Option<[f64; 2]>) -> usize {
+    fn place(&mut self, t: u64, nav: &NavAt) -> usize {
         let id = self.nodes.len();
         let samples: Vec<[f64; N_FEATURES]> = Vec::with_capacity(self.cfg.samples_per_node);
         self.nodes.push(LiveNode {
@@ -838,7 +836,6 @@ impl LiveMapper {
             pos_ned_m: nav.pos,
             cov_ne_m2: nav.cov,
             created_t_us: t,
-            truth_ned_m: truth,
             observations: 0,
             fixes: 0,
             last_fix_t_us: None,
@@ -934,12 +931,12 @@ impl LiveMapper {
         self.metric = Some(metric);
     }
 
-    fn recognise(&mut self, frame: &CameraFrame, f: &[f64; N_FEATURES], nav: &NavAt) -> Recognition {
+    fn recognise(&mut self, frame: &CameraFrame, f: &[f64; N_FEATURES], nav: &NavAt, events: &mut dyn FnMut(MapEvent)) -> Recognition {
         let Some(metric) = &self.metric else { return Recognition::None };
         let cfg = self.cfg;
         let t = frame.t_us;
-        let truth = frame.truth_ned_m.filter(|p| finite(p));
         self.stats.recognition_attempts += 1;
+        events(MapEvent::Attempt { t_us: t });
         let p1 = sym(nav.cov);
         let x1 = Vector2::new(nav.pos[0], nav.pos[1]);
         let v = Matrix2::identity() * cfg.recognition_sigma_m.powi(2);
@@ -947,7 +944,6 @@ impl LiveMapper {
 
         // Position gate of every node old enough to be revisited.
         self.gate_scratch.clear();
-        let mut opportunity = false;
         for n in &self.nodes {
             let eligible = n.created_t_us.saturating_add(min_age_us) <= t;
             let d2 = if eligible {
@@ -963,9 +959,6 @@ impl LiveMapper {
             } else {
                 f64::INFINITY
             };
-            if let (true, Some(tr), Some(nt)) = (eligible, truth, n.truth_ned_m) {
-                opportunity |= dist(tr, nt) < cfg.opportunity_radius_m;
-            }
             self.gate_scratch.push(if d2.is_finite() { d2 } else { f64::INFINITY });
         }
         // An infinite gate statistic (node too young, or no PD innovation covariance) skips the
@@ -992,26 +985,19 @@ impl LiveMapper {
                 best_sample = s;
             }
         }
-        self.stats.opportunities += u64::from(opportunity && truth.is_some());
-        let is_correct = |node: usize| -> Option<bool> {
-            let nt = self.nodes.get(node).and_then(|n| n.truth_ned_m)?;
-            Some(dist(truth?, nt) < cfg.correct_radius_m)
-        };
         let thr2 = metric.threshold2;
         let mut refused = None;
         if best_all.0 < thr2 {
             self.stats.appearance_matches += 1;
-            self.stats.appearance_correct += u64::from(is_correct(best_all.1) == Some(true));
             let g = self.gate_scratch[best_all.1];
+            events(MapEvent::AppearanceMatch { t_us: t, node: best_all.1, gate_refused: g >= cfg.gate_chi2 });
             if g >= cfg.gate_chi2 {
                 self.stats.gate_refusals += 1;
                 self.stats.gate_too_wide += u64::from(g == f64::MAX);
-                self.stats.gate_refusals_correct += u64::from(is_correct(best_all.1) == Some(true));
                 refused = Some((best_all.1, g));
             }
         }
         if best_gated.0.is_nan() || best_gated.0 >= thr2 {
-            self.update_scores();
             // The held recognition's run of matches has ended: send it.
             if let Some(h) = self.held.take() {
                 return Recognition::Event(self.send(h));
@@ -1019,11 +1005,8 @@ impl LiveMapper {
             return refused.map_or(Recognition::None, |(n, d2)| Recognition::GateRefused(n, d2));
         }
         let (app_d2, node) = best_gated;
-        let correct = is_correct(node);
         self.stats.recognitions += 1;
-        self.stats.correct += u64::from(correct == Some(true));
-        self.stats.recalled += u64::from(correct == Some(true) && opportunity);
-        self.update_scores();
+        events(MapEvent::Recognised { t_us: t, node });
         let gate_d2 = self.gate_scratch[node];
         let n = &mut self.nodes[node];
         n.observations += 1;
@@ -1042,7 +1025,7 @@ impl LiveMapper {
         // place (its footprint overlaps the node's images from a metre or two away): hold it
         // while the next frames match the same node better, and send the best.
         let place_ne_m = self.place_of.get(best_sample).copied().unwrap_or(n.pos_ned_m);
-        let this = Held { node, place_ne_m, app_d2, frame: *frame, nav: *nav, gate_d2, correct, first_t_us: t };
+        let this = Held { node, place_ne_m, app_d2, frame: *frame, nav: *nav, gate_d2, first_t_us: t };
         let hold_us = (cfg.best_match_hold_s.max(0.0) * 1e6) as u64;
         match self.held.take() {
             Some(h) if h.node == node && app_d2 < h.app_d2 && t.saturating_sub(h.first_t_us) < hold_us => {
@@ -1062,9 +1045,8 @@ impl LiveMapper {
     /// The fix of a (held) recognition, or why none is sent.
     fn send(&mut self, h: Held) -> FrameOutcome {
         let cfg = self.cfg;
-        let Held { node, place_ne_m, app_d2, frame, nav, gate_d2, correct, .. } = h;
+        let Held { node, place_ne_m, app_d2, frame, nav, gate_d2, .. } = h;
         let t = frame.t_us;
-        let truth = frame.truth_ned_m.filter(|p| finite(p));
         let p1 = sym(nav.cov);
         let x1 = Vector2::new(nav.pos[0], nav.pos[1]);
         let v = Matrix2::identity() * cfg.recognition_sigma_m.powi(2);
@@ -1129,22 +1111,8 @@ impl LiveMapper {
             let half = self.closures.len() / 2;
             self.closures.drain(..half);
         }
-        self.closures.push(Closure {
-            t_us: t,
-            node,
-            vehicle_ne_m: nav.pos,
-            fix_ne_m: fix.pos_ne_m,
-            fix_cov_ne_m2: fix.cov_ne_m2,
-            truth_ned_m: truth,
-            correct,
-        });
+        self.closures.push(Closure { t_us: t, node, vehicle_ne_m: nav.pos, fix_ne_m: fix.pos_ne_m, fix_cov_ne_m2: fix.cov_ne_m2 });
         FrameOutcome::Fix(fix)
-    }
-
-    fn update_scores(&mut self) {
-        let s = &mut self.stats;
-        s.precision = (s.recognitions > 0).then(|| s.correct as f64 / s.recognitions as f64);
-        s.recall = (s.opportunities > 0).then(|| s.recalled as f64 / s.opportunities as f64);
     }
 
     pub fn stats(&self) -> LiveStats {
