@@ -345,6 +345,24 @@ pub struct NavFilter<const N: usize, const S: usize> {
 pub type NavFilter15 = NavFilter<15, 31>;
 pub type NavFilter18 = NavFilter<18, 37>;
 
+/// The yaw error (the NED attitude error's down component) made independent of every other
+/// state, with variance `var_rad2`: its row and column zeroed but the diagonal. Zeroing one row
+/// and column of a positive definite matrix leaves it positive definite. Used by the heading
+/// reset and while the yaw is unobserved ([`NavFilter::set_yaw_unobserved`]).
+pub(crate) fn set_yaw_uncorrelated<const N: usize>(p: &mut SMatrix<f32, N, N>, var_rad2: f32) {
+    let yaw = ATT + 2;
+    for i in 0..N {
+        for idx in [(yaw, i), (i, yaw)] {
+            if let Some(v) = p.get_mut(idx) {
+                *v = 0.0;
+            }
+        }
+    }
+    if let Some(v) = p.get_mut((yaw, yaw)) {
+        *v = var_rad2;
+    }
+}
+
 fn group_diag<const N: usize>(d: &mut SVector<f32, N>, start: usize, v: f32) {
     set_seg(d, start, &Vector3::new(v, v, v));
 }
@@ -593,20 +611,13 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
     /// a vehicle that accelerates, at rest only the noise the aids left in the nominal, and
     /// with the yaw's sigma points 166 deg apart that noise built yaw-velocity and
     /// yaw-accelerometer-bias correlations through which the DVL and the depth took the yaw
-    /// sigma from 86 to 32 deg in 20 s at rest. Zeroing one row and column of a positive definite
-    /// matrix (the diagonal kept) leaves it positive definite.
+    /// sigma from 86 to 32 deg in 20 s at rest.
     #[inline(never)]
     #[cold]
     fn decouple_yaw(&mut self) -> Result<(), NavError> {
-        let yaw = ATT + 2;
         let mut p = *self.ukf.p();
-        for i in (0..N).filter(|&i| i != yaw) {
-            for idx in [(yaw, i), (i, yaw)] {
-                if let Some(v) = p.get_mut(idx) {
-                    *v = 0.0;
-                }
-            }
-        }
+        let var = p.get((ATT + 2, ATT + 2)).copied().unwrap_or(0.0);
+        set_yaw_uncorrelated(&mut p, var);
         self.ukf.set_p(p)?;
         Ok(())
     }

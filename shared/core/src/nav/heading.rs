@@ -72,17 +72,7 @@ impl<const N: usize, const S: usize> NavFilter<N, S> {
             }
         }
         let mut p = t * self.ukf.p() * t.transpose();
-        let yaw = ATT + 2;
-        for i in 0..N {
-            for idx in [(yaw, i), (i, yaw)] {
-                if let Some(v) = p.get_mut(idx) {
-                    *v = 0.0;
-                }
-            }
-        }
-        if let Some(v) = p.get_mut((yaw, yaw)) {
-            *v = sigma_rad * sigma_rad;
-        }
+        super::filter::set_yaw_uncorrelated(&mut p, sigma_rad * sigma_rad);
         self.ukf.set_p(p)?;
         self.nom = nom;
         // The nominal frame turned: the recorded past is no longer the same trajectory.
