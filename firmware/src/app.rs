@@ -560,6 +560,9 @@ impl App {
     }
 }
 
+// `CalibrationInUse::polarization_units_stored` has a bit per unit.
+const _: () = assert!(head::POLARIZATION_UNITS <= 8);
+
 fn mark_in_use(cal: &mut CalibrationInUse, key: RecordKey, stored: bool) {
     match key {
         RecordKey::RunConfig => cal.config_stored = stored,
@@ -1067,7 +1070,7 @@ pub(crate) mod tests {
         }
         let mut bytes = cmd(1, Command::SetRecord(polarization(1, 3.0))); // gain out of range
         bytes.extend(cmd(2, Command::SetRecord(bad)));
-        bytes.extend(cmd(3, Command::ReadRecord(RecordKey::Polarization { unit: 7 })));
+        bytes.extend(cmd(3, Command::ReadRecord(RecordKey::Polarization { unit: head::POLARIZATION_UNITS as u8 })));
         bytes.extend(cmd(4, Command::SetRecord(polarization(1, 0.95))));
         bytes.extend(cmd(5, Command::ReadRecord(RecordKey::Polarization { unit: 1 })));
         let mut out = Vec::new();

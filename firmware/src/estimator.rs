@@ -661,26 +661,19 @@ impl Estimator {
         utc_unix_us: Option<i64>,
         observer: Option<Observer>,
     ) -> CompassReport {
-        let mut models: heapless::Vec<UnitModel, { head::POLARIZATION_UNITS }> = heapless::Vec::new();
-        let mut counts: heapless::Vec<[i16; 4], { head::POLARIZATION_UNITS }> = heapless::Vec::new();
-        for (idx, c) in readings {
-            if let Some(Some(u)) = self.units.get(*idx) {
-                if models.push(*u).is_ok() && counts.push(*c).is_err() {
-                    let _ = models.pop();
-                }
-            }
-        }
-        let counts = counts.as_slice();
+        // The units that were read and have a model, by reference (no copy of the models).
+        let units = &self.units;
+        let pairs = readings.iter().filter_map(|(idx, c)| units.get(*idx).and_then(Option::as_ref).map(|u| (u, c)));
         let accel = if self.accel_seen { self.accel_lp } else { [f32::NAN; 3] };
         let input = CompassInput {
-            counts,
+            counts: &[],
             accel_body_mps2: accel,
             unix_us: utc_unix_us,
             observer,
             delta_t_s: utc_unix_us.map(delta_t_estimate_s).unwrap_or(69.0),
         };
         // Too few units is reported by the solver as a NoFix reason.
-        let mut result = compass::solve(&models, &input, &self.compass_cfg);
+        let mut result = compass::solve_pairs(pairs, &input, &self.compass_cfg);
         if let Ok(fix) = result.as_mut() {
             // The reported sigma includes the waves' part; the filter takes each fix as
             // independent, so it gets that part inflated for the fixes' correlation.

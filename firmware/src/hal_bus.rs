@@ -69,6 +69,27 @@ impl<T: I2c> I2c for HalI2c<T> {
     }
 }
 
+/// Either of two I2C buses behind one type: the head's eight polarization ADCs are one array of
+/// bus handles while units 0-3 and 4-7 sit on different peripherals (`bus_map`), whose HAL
+/// types differ (on the STM32 board I2C1 and I2C3).
+pub enum HalI2cEither<A, B> {
+    First(HalI2c<A>),
+    Second(HalI2c<B>),
+}
+
+impl<A: I2c, B: I2c> i2c::ErrorType for HalI2cEither<A, B> {
+    type Error = HalBusError;
+}
+
+impl<A: I2c, B: I2c> I2c for HalI2cEither<A, B> {
+    fn transaction(&mut self, address: u8, operations: &mut [I2cOp<'_>]) -> Result<(), HalBusError> {
+        match self {
+            Self::First(bus) => bus.transaction(address, operations),
+            Self::Second(bus) => bus.transaction(address, operations),
+        }
+    }
+}
+
 /// An SPI device (bus + chip select).
 pub struct HalSpi<T>(pub T);
 
@@ -116,6 +137,18 @@ mod tests {
         assert_eq!(nack.fault_kind(), FaultKind::BusNack);
         let other = HalI2c(Failing(i2c::ErrorKind::ArbitrationLoss)).write(0x48, &[1]).unwrap_err();
         assert_eq!(other.fault_kind(), FaultKind::BusOther);
+        // Either of two buses: each variant reaches its own bus.
+        let mut second: HalI2cEither<Failing, I2cMock> = HalI2cEither::Second(HalI2c(I2cMock::new(&[
+            I2cT::transaction_start(0x4A),
+            I2cT::write(0x4A, vec![1]),
+            I2cT::transaction_end(0x4A),
+        ])));
+        second.write(0x4A, &[1]).unwrap();
+        if let HalI2cEither::Second(HalI2c(m)) = &mut second {
+            m.done();
+        }
+        let mut first: HalI2cEither<Failing, I2cMock> = HalI2cEither::First(HalI2c(Failing(i2c::ErrorKind::ArbitrationLoss)));
+        assert_eq!(first.write(0x48, &[1]).unwrap_err(), HalBusError(FaultKind::BusOther));
         assert_eq!(i2c::Error::kind(&HalBusError(FaultKind::BusNack)), i2c::ErrorKind::NoAcknowledge(i2c::NoAcknowledgeSource::Unknown));
     }
 

@@ -34,7 +34,7 @@ use subnav_firmware::drivers::ms5837::{DepthParams, Ms5837, Osr};
 use subnav_firmware::drivers::{Error, StuckDetector};
 use subnav_sil::chips::icm42688::Stuck;
 use subnav_sil::chips::{Ads1115Model, BusFault, ChipSet, I2cChip, Icm42688Model, ImuInput, Ms5837Model, PressureInput, SpiChip};
-use subnav_wire::bridge::{BusRequest, MAX_REQUEST_FRAME};
+use subnav_wire::bridge::{BusRequest, MAX_REQUEST_FRAME, bus_map};
 use subnav_wire::{self as wire, Decoded, FaultKind, FrameDecoder};
 
 // ---------------------------------------------------------------------------------------------
@@ -265,21 +265,29 @@ fn icm42688_reports_not_ready_before_the_first_sample() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// 4 x ADS1115
+// 8 x ADS1115 on two buses
 
-type Volts = Arc<Mutex<[[f64; 4]; 4]>>;
+const UNITS: usize = bus_map::POLARIZATION_ADC_I2C.len();
+type Volts = Arc<Mutex<[[f64; 4]; UNITS]>>;
 
 fn adc_rig(config: AdcConfig) -> (PolarizationAdcs<SimI2c>, Vec<Rc<RefCell<Ads1115Model>>>, Volts, Clock) {
-    let volts: Volts = Arc::new(Mutex::new([[0.0; 4]; 4]));
+    let volts: Volts = Arc::new(Mutex::new([[0.0; 4]; UNITS]));
     let clock = Clock::default();
-    let models: Vec<Rc<RefCell<Ads1115Model>>> = (0..4)
+    let models: Vec<Rc<RefCell<Ads1115Model>>> = (0..UNITS)
         .map(|u| {
             let v = volts.clone();
-            Rc::new(RefCell::new(Ads1115Model::new(0x48 + u as u8, move |_t| v.lock().unwrap()[u])))
+            Rc::new(RefCell::new(Ads1115Model::new(bus_map::POLARIZATION_ADC_I2C[u].1, move |_t| v.lock().unwrap()[u])))
         })
         .collect();
-    let bus = SimI2c { chips: models.iter().map(|m| m.clone() as Rc<RefCell<dyn I2cChip>>).collect(), clock: clock.clone() };
-    let adcs = PolarizationAdcs::new([bus.clone(), bus.clone(), bus.clone(), bus], config);
+    // One simulated bus per bus of the map, each with its own four chips.
+    let bus = |n: u8| SimI2c {
+        chips: (0..UNITS)
+            .filter(|&u| bus_map::POLARIZATION_ADC_I2C[u].0 == n)
+            .map(|u| models[u].clone() as Rc<RefCell<dyn I2cChip>>)
+            .collect(),
+        clock: clock.clone(),
+    };
+    let adcs = PolarizationAdcs::new(core::array::from_fn(|u| bus(bus_map::POLARIZATION_ADC_I2C[u].0)), config);
     (adcs, models, volts, clock)
 }
 
@@ -293,11 +301,11 @@ fn ads1115_reads_back_random_volts_within_half_an_lsb() {
         let fs = f64::from(adc::full_scale_v(fsr));
         let lsb = fs / 32768.0;
         for _ in 0..200 {
-            let v: [[f64; 4]; 4] = [[0.0; 4]; 4].map(|row| row.map(|_| rng.uniform(0.0, 0.999 * fs)));
+            let v: [[f64; 4]; UNITS] = [[0.0; 4]; UNITS].map(|row| row.map(|_| rng.uniform(0.0, 0.999 * fs)));
             *volts.lock().unwrap() = v;
             let scan = adcs.scan(&mut SimDelay(clock.clone()));
             assert!(scan.errors.iter().all(|e| e.is_none()), "{:?}", scan.errors);
-            assert_eq!(scan.saturated, [0; 4]);
+            assert_eq!(scan.saturated, [0; UNITS]);
             for (u, (counts, volts_in)) in scan.counts.iter().zip(v.iter()).enumerate() {
                 for (ch, (c, want)) in counts.iter().zip(volts_in.iter()).enumerate() {
                     let got = f64::from(adc::volts(*c, fsr));
@@ -307,7 +315,7 @@ fn ads1115_reads_back_random_volts_within_half_an_lsb() {
                 }
             }
         }
-        // Each scan made 16 conversions, in the configured data rate's time.
+        // Each scan made 32 conversions, in the configured data rate's time.
         assert!(models.iter().all(|m| m.borrow().conversions >= 800));
         // The chips run with the PGA and data rate the driver configured (datasheet codes).
         let (pga, dr) = match (fsr, rate) {
@@ -318,9 +326,9 @@ fn ads1115_reads_back_random_volts_within_half_an_lsb() {
             assert_eq!(((m.borrow().config() >> 9) & 7, (m.borrow().config() >> 5) & 7), (pga, dr));
         }
         // Beyond the PGA range: full-scale code, flagged.
-        *volts.lock().unwrap() = [[0.0, 1.2 * fs, 0.0, 0.0]; 4];
+        *volts.lock().unwrap() = [[0.0, 1.2 * fs, 0.0, 0.0]; UNITS];
         let scan = adcs.scan(&mut SimDelay(clock.clone()));
-        assert_eq!(scan.saturated, [0b0010; 4]);
+        assert_eq!(scan.saturated, [0b0010; UNITS]);
         assert_eq!(scan.counts[0][1], i16::MAX);
     }
     println!("worst ADC error: {worst:.3} LSB");
@@ -331,7 +339,7 @@ fn ads1115_reads_back_random_volts_within_half_an_lsb() {
 fn ads1115_faults_fail_only_the_affected_unit() {
     let (mut adcs, models, volts, clock) = adc_rig(AdcConfig::default());
     assert!(adcs.init().iter().all(|r| r.is_ok()));
-    *volts.lock().unwrap() = [[1.0, 1.5, 2.0, 2.5]; 4];
+    *volts.lock().unwrap() = [[1.0, 1.5, 2.0, 2.5]; UNITS];
     // Unit 2 NACKs for a while (bus NACK), unit 1's conversions hang (no OS).
     models[2].borrow_mut().faults.nack_window_us = Some((0, 1_000_000));
     models[1].borrow_mut().hang = true;
@@ -339,8 +347,8 @@ fn ads1115_faults_fail_only_the_affected_unit() {
     assert_eq!(scan.errors[2], Some(Error::Bus(BridgeError(BusFault::Nack))));
     assert_eq!(scan.errors[2].as_ref().map(|e| e.fault_kind()), Some(FaultKind::BusNack));
     assert_eq!(scan.errors[1], Some(Error::NotReady));
-    assert_eq!(scan.ok_units().collect::<Vec<_>>(), vec![0, 3]);
-    for u in [0, 3] {
+    assert_eq!(scan.ok_units().collect::<Vec<_>>(), vec![0, 3, 4, 5, 6, 7]);
+    for u in [0, 3, 4, 7] {
         for (ch, v) in [1.0, 1.5, 2.0, 2.5].iter().enumerate() {
             assert!((f64::from(adc::volts(scan.counts[u][ch], PgaRange::Within4_096V)) - v).abs() < 1.25e-4);
         }
@@ -486,10 +494,13 @@ fn drivers_work_through_the_bridge_protocol_and_chipset() {
         0,
         Icm42688Model::new(|_| ImuInput { gyro_radps: [0.1, -0.2, 0.3], specific_force_mps2: [0.0, 0.0, -9.80665], temp_c: 21.0 }),
     );
-    for u in 0..4u8 {
-        chips.attach_i2c(0, Ads1115Model::new(0x48 + u, move |_| [0.5, 1.0, 1.5, 2.0].map(|v| v + f64::from(u))));
+    // Unit u's inputs: 0.25 (ch + 1) + 0.4 u volts; unit 3's AIN2 and AIN3 beyond the range.
+    let volts_in =
+        |u: usize, ch: usize| if u == 3 && ch >= 2 { 4.5 + 0.5 * (ch - 2) as f64 } else { 0.25 * (ch as f64 + 1.0) + 0.4 * u as f64 };
+    for (u, (bus, address)) in bus_map::POLARIZATION_ADC_I2C.into_iter().enumerate() {
+        chips.attach_i2c(bus, Ads1115Model::new(address, move |_| core::array::from_fn(|ch| volts_in(u, ch))));
     }
-    chips.attach_i2c(0, Ms5837Model::new(|_| PressureInput { pressure_pa: 150_000.0, temp_c: 12.0 }));
+    chips.attach_i2c(bus_map::DEPTH_I2C.0, Ms5837Model::new(|_| PressureInput { pressure_pa: 150_000.0, temp_c: 12.0 }));
     let client = RefCell::new(BridgeClient::new(Loopback { chips, dec: FrameDecoder::new(), rx: VecDeque::new() }));
     let mut delay = BridgeDelay(&client, Cell::new(0));
 
@@ -500,24 +511,24 @@ fn drivers_work_through_the_bridge_protocol_and_chipset() {
     assert!((r.gyro_radps[2] - 0.3).abs() < 1e-3 && (r.accel_mps2[2] + 9.80665).abs() < 1e-2 && (r.temp_c - 21.0).abs() < 0.01);
     assert_eq!(imu::WHO_AM_I_VALUE, imu_dev.who_am_i().unwrap());
 
-    let mut adcs = PolarizationAdcs::new(core::array::from_fn(|_| BridgeI2c::new(&client, 0)), AdcConfig::default());
+    let mut adcs =
+        PolarizationAdcs::new(core::array::from_fn(|u| BridgeI2c::new(&client, bus_map::POLARIZATION_ADC_I2C[u].0)), AdcConfig::default());
     assert!(adcs.init().iter().all(|r| r.is_ok()));
     let scan = adcs.scan(&mut delay);
-    for u in 0..4 {
+    for u in 0..bus_map::POLARIZATION_ADC_I2C.len() {
         for ch in 0..4 {
             let v = f64::from(adc::volts(scan.counts[u][ch], PgaRange::Within4_096V));
-            let want = 0.5 * (ch as f64 + 1.0) + u as f64;
-            let want = want.min(4.096 - 4.096 / 32768.0);
+            let want = volts_in(u, ch).min(4.096 - 4.096 / 32768.0);
             assert!((v - want).abs() < 1.25e-4, "unit {u} ch {ch}: {v} vs {want}");
         }
     }
-    assert_eq!(scan.saturated, [0, 0, 0, 0b1100], "unit 3: AIN2 = 4.5 V and AIN3 = 5 V are beyond 4.096 V");
+    assert_eq!(scan.saturated, [0, 0, 0, 0b1100, 0, 0, 0, 0], "unit 3: AIN2 = 4.5 V and AIN3 = 5 V are beyond 4.096 V");
 
-    let mut depth = Ms5837::new(BridgeI2c::new(&client, 0), DepthParams::default());
+    let mut depth = Ms5837::new(BridgeI2c::new(&client, bus_map::DEPTH_I2C.0), DepthParams::default());
     depth.init(&mut delay).unwrap();
     let r = depth.measure(Osr::R2048, &mut delay).unwrap();
     assert!((r.pressure_pa - 150_000.0).abs() <= 5.0 && (r.temp_c - 12.0).abs() <= 0.005);
     // An absent device NACKs through the whole stack.
-    let mut ghost = Ms5837::new(BridgeI2c::new(&client, 1), DepthParams::default());
+    let mut ghost = Ms5837::new(BridgeI2c::new(&client, 2), DepthParams::default());
     assert_eq!(ghost.init(&mut delay).unwrap_err().fault_kind(), FaultKind::BusNack);
 }

@@ -10,10 +10,11 @@
 //! - defmt logs over RTT (probe-rs), panics through panic-probe;
 //! - time from SysTick at 1 kHz plus the sub-tick counter;
 //! - sensors (the same drivers and `HeadSuite` as the QEMU board, only the buses differ): the
-//!   ICM-42688-P on SPI1 (PA5 SCK, PA6 MISO, PA7 MOSI, PA4 chip select, 8 MHz, mode 0), the four
-//!   ADS1115 (0x48-0x4B) and the MS5837-30BA (0x76) sharing I2C1 (PB6 SCL, PB7 SDA, 400 kHz)
-//!   through embedded-hal-bus's `RefCellDevice`, each bus wrapped in `hal_bus` so its errors
-//!   map to telemetry fault kinds;
+//!   ICM-42688-P on SPI1 (PA5 SCK, PA6 MISO, PA7 MOSI, PA4 chip select, 8 MHz, mode 0), the
+//!   ADS1115 of polarization units 0-3 (0x48-0x4B) and the MS5837-30BA (0x76) sharing I2C1
+//!   (PB6 SCL, PB7 SDA, 400 kHz), the ADS1115 of units 4-7 (0x48-0x4B) on I2C3 (PA8 SCL, PC9
+//!   SDA, 400 kHz; the bus map's I2C 1), through embedded-hal-bus's `RefCellDevice`, each bus
+//!   wrapped in `hal_bus` so its errors map to telemetry fault kinds;
 //! - the DVL (Water Linked DVL-A50) on USART3 (PB10 TX, PB11 RX) at 115200 baud, received
 //!   through its own interrupt-fed queue (losses: `Fault(Dvl, Overrun | Malformed)`);
 //! - the store (calibrations, settings): the W25Q16JV on SPI2 (PB13 SCK, PB14 MISO, PB15 MOSI,
@@ -59,13 +60,14 @@ use stm32f4xx_hal::{
 use subnav_firmware::board_loop::{BoardIo, BoardLoop, BoardParts, CatchUp};
 use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::estimator::warm::WARM_RECORD_BYTES;
-use subnav_firmware::hal_bus::{HalBusError, HalI2c, HalSpi};
+use subnav_firmware::hal_bus::{HalBusError, HalI2c, HalI2cEither, HalSpi};
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::uart_queue::{RxConsumer, RxError, RxProducer, RxStats, TxConsumer, TxProducer, TxStats};
 use subnav_firmware::{App, TelemetrySink};
+use subnav_wire::bridge::bus_map;
 use subnav_wire::{Board, FaultKind, FaultSource, ResetCause};
 
 const HSE_HZ: u32 = 8_000_000;
@@ -292,6 +294,7 @@ fn main() -> ! {
 
     let gpioa = dp.GPIOA.split(&mut rcc);
     let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
     let serial: Serial<pac::USART2> =
         match dp.USART2.serial((gpioa.pa2, gpioa.pa3), serial::Config::default().baudrate(460_800.bps()), &mut rcc) {
             Ok(s) => s,
@@ -369,12 +372,18 @@ fn main() -> ! {
     );
     let cs = gpioa.pa4.into_push_pull_output();
     let Ok(imu_dev) = ExclusiveDevice::new(spi, cs, CycleDelay);
-    let i2c = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
+    // The bus map's I2C 0 is I2C1, its I2C 1 is I2C3 (subnav_wire::bridge::bus_map).
+    let i2c1 = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
+    let i2c3 = RefCell::new(dp.I2C3.i2c((gpioa.pa8, gpioc.pc9), 400.kHz(), &mut rcc));
+    let i2c_on = |bus: u8| match bus {
+        0 => HalI2cEither::First(HalI2c(RefCellDevice::new(&i2c1))),
+        _ => HalI2cEither::Second(HalI2c(RefCellDevice::new(&i2c3))),
+    };
     let mut delay = CycleDelay;
     let suite = HeadSuite::new(
         HalSpi(imu_dev),
-        core::array::from_fn(|_| HalI2c(RefCellDevice::new(&i2c))),
-        HalI2c(RefCellDevice::new(&i2c)),
+        core::array::from_fn(|u| i2c_on(bus_map::POLARIZATION_ADC_I2C[u].0)),
+        i2c_on(bus_map::DEPTH_I2C.0),
         Some(DvlUart { rx: RxConsumer::new(dvl_consumer), tx: dvl_tx }),
         &mut delay,
     )

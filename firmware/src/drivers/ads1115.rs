@@ -1,13 +1,15 @@
-//! Polarization photodiodes: four TI ADS1115 16-bit ADCs on I2C (0x48, 0x49, 0x4A, 0x4B).
+//! Polarization photodiodes: eight TI ADS1115 16-bit ADCs on two I2C buses (0x48, 0x49, 0x4A,
+//! 0x4B on each: the chip has only four addresses).
 //!
-//! Wiring: ADC `u` (address 0x48 + u) serves polarization unit `u`; its single-ended inputs
-//! AIN0..AIN3 carry the photodiodes behind the 0, 45, 90 and 135 deg polarizers, the order of
-//! `subnav_wire::PolarizationSample::counts`. 4 units x 4 channels = 16 channels.
+//! Wiring (`subnav_wire::bridge::bus_map::POLARIZATION_ADC_I2C`): ADC `u` serves polarization
+//! unit `u`, units 0-3 on the first bus, 4-7 on the second; its single-ended inputs AIN0..AIN3
+//! carry the photodiodes behind the 0, 45, 90 and 135 deg polarizers, the order of
+//! `subnav_wire::PolarizationSample::counts`. 8 units x 4 channels = 32 channels.
 //!
 //! The chip itself is driven by the maintained `ads1x1x` crate (eldruin, embedded-hal 1.0,
 //! no_std): one-shot conversions with the chosen PGA range and data rate, polled through its
-//! `nb` interface (the config register's OS bit). This module only schedules the 16 conversions:
-//! the four ADCs convert in parallel, channel by channel, and a unit whose ADC fails (NACK,
+//! `nb` interface (the config register's OS bit). This module only schedules the 32 conversions:
+//! the eight ADCs convert in parallel, channel by channel, and a unit whose ADC fails (NACK,
 //! conversion that never completes) is reported on its own while the others still deliver.
 //!
 //! Counts are the raw signed 16-bit conversion results; [`volts`] converts with the PGA range.
@@ -15,7 +17,8 @@
 //! range: it is flagged in [`Scan::saturated`].
 //!
 //! ```ignore
-//! let mut adcs = PolarizationAdcs::new([i2c0, i2c1, i2c2, i2c3], AdcConfig::default());
+//! // one handle per ADC, on the bus the bus map gives (e.g. embedded-hal-bus devices)
+//! let mut adcs = PolarizationAdcs::new(core::array::from_fn(|u| bus_for(u)), AdcConfig::default());
 //! let init = adcs.init();                          // per unit: Ok, or the error of that ADC
 //! // from the scheduler, every tick (non-blocking; about 5 calls per scan):
 //! if let Some(scan) = adcs.poll() { /* scan.counts[unit][0..4], scan.errors[unit] */ }
@@ -28,12 +31,21 @@ use embedded_hal::i2c::I2c;
 
 use super::Error;
 
-/// Number of ADCs (= polarization units) and channels per ADC.
-pub const UNITS: usize = 4;
+/// Number of ADCs (= the head's polarization units) and channels per ADC.
+pub const UNITS: usize = subnav_core::head::POLARIZATION_UNITS;
 pub const CHANNELS: usize = 4;
-/// I2C addresses of unit 0..3 (ADDR pin to GND, VDD, SDA, SCL).
-pub const ADDRESSES: [u8; UNITS] = [0x48, 0x49, 0x4A, 0x4B];
-const TARGETS: [TargetAddr; UNITS] = [TargetAddr::Gnd, TargetAddr::Vdd, TargetAddr::Sda, TargetAddr::Scl];
+/// (I2C bus, address) of unit 0..7: the bus map (its length must be the head's unit count).
+pub const BUS_ADDRESSES: [(u8, u8); UNITS] = subnav_wire::bridge::bus_map::POLARIZATION_ADC_I2C;
+
+/// The ADDR pin strapping that gives an address (0x48 GND, 0x49 VDD, 0x4A SDA, 0x4B SCL).
+const fn target(address: u8) -> TargetAddr {
+    match address {
+        0x49 => TargetAddr::Vdd,
+        0x4A => TargetAddr::Sda,
+        0x4B => TargetAddr::Scl,
+        _ => TargetAddr::Gnd,
+    }
+}
 
 /// One ADS1115 in one-shot mode (the `ads1x1x` driver).
 pub type Adc<I2C> = Ads1x1x<I2C, ic::Ads1115, ic::Resolution16Bit, mode::OneShot>;
@@ -71,7 +83,7 @@ pub fn volts(counts: i16, fsr: FullScaleRange) -> f32 {
     f32::from(counts) * full_scale_v(fsr) / 32768.0
 }
 
-/// ADC configuration, the same for the four chips.
+/// ADC configuration, the same for every chip.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct AdcConfig {
     pub fsr: FullScaleRange,
@@ -88,7 +100,7 @@ impl Default for AdcConfig {
     }
 }
 
-/// The result of one scan of the 16 channels.
+/// The result of one scan of the 32 channels.
 #[derive(Debug)]
 pub struct Scan<E> {
     /// `counts[unit][channel]`, channels in polarizer order 0, 45, 90, 135 deg. Zero for a failed unit.
@@ -112,7 +124,7 @@ enum Slot<E> {
     Failed(Error<E>),
 }
 
-/// The four ADCs of the polarization units.
+/// The eight ADCs of the polarization units.
 pub struct PolarizationAdcs<I2C: I2c> {
     adcs: [Adc<I2C>; UNITS],
     config: AdcConfig,
@@ -123,12 +135,13 @@ pub struct PolarizationAdcs<I2C: I2c> {
 }
 
 impl<I2C: I2c> PolarizationAdcs<I2C> {
-    /// One bus handle per ADC (the same bus shared, e.g. with `embedded-hal-bus` or the QEMU
-    /// bridge), unit `u` at address 0x48 + u. No bus traffic until [`Self::init`].
+    /// One bus handle per ADC (handles on one bus shared, e.g. with `embedded-hal-bus` or the
+    /// QEMU bridge), unit `u`'s on the bus [`BUS_ADDRESSES`] names, at its address there. No
+    /// bus traffic until [`Self::init`].
     pub fn new(buses: [I2C; UNITS], config: AdcConfig) -> Self {
         let mut i = 0;
         let adcs = buses.map(|bus| {
-            let target = TARGETS.get(i).copied().unwrap_or_default();
+            let target = target(BUS_ADDRESSES.get(i).map_or(0x48, |b| b.1));
             i += 1;
             Ads1x1x::new_ads1115(bus, target)
         });
@@ -142,7 +155,7 @@ impl<I2C: I2c> PolarizationAdcs<I2C> {
         }
     }
 
-    /// Give the four bus handles back.
+    /// Give the bus handles back.
     pub fn destroy(self) -> [I2C; UNITS] {
         self.adcs.map(|a| a.destroy_ads1115())
     }
@@ -164,7 +177,7 @@ impl<I2C: I2c> PolarizationAdcs<I2C> {
         out
     }
 
-    /// Advance the scan without blocking. Returns the scan when all 16 channels are done (or
+    /// Advance the scan without blocking. Returns the scan when all 32 channels are done (or
     /// their unit failed); the next call starts a new scan.
     pub fn poll(&mut self) -> Option<Scan<I2C::Error>> {
         // At most one pass per channel: when a channel completes on every ADC the next one is
@@ -285,7 +298,7 @@ mod tests {
     fn init_writes_pga_and_data_rate() {
         // ads1x1x starts from the reset config 0x8583; PGA 001 (+-4.096 V) gives 0x8383, then
         // DR 111 (860 SPS) gives 0x83E3. One mock per unit, each expecting only its own address.
-        let buses: [Mock; 4] = core::array::from_fn(|u| Mock::new(&init_transactions(ADDRESSES[u])));
+        let buses: [Mock; UNITS] = core::array::from_fn(|u| Mock::new(&init_transactions(BUS_ADDRESSES[u].1)));
         let mut adcs = PolarizationAdcs::new(buses, AdcConfig::default());
         assert!(adcs.init().iter().all(|r| r.is_ok()));
         assert_eq!(cfg(0b100), 0xC3E3);
@@ -316,11 +329,20 @@ mod tests {
     }
 
     #[test]
-    fn scan_reads_16_channels_and_flags_saturation() {
-        let counts = [[100, 200, 300, 400], [-5, 0, 5, 10], [32767, 1, 2, -32768], [7, 7, 7, 7]];
-        let buses: [Mock; 4] = core::array::from_fn(|u| {
-            let mut t = init_transactions(ADDRESSES[u]);
-            t.extend(scan_transactions(ADDRESSES[u], counts[u]));
+    fn scan_reads_32_channels_and_flags_saturation() {
+        let counts = [
+            [100, 200, 300, 400],
+            [-5, 0, 5, 10],
+            [32767, 1, 2, -32768],
+            [7, 7, 7, 7],
+            [1, 2, 3, 4],
+            [5, 6, 7, 8],
+            [9, 10, 11, 32767],
+            [12, 13, 14, 15],
+        ];
+        let buses: [Mock; UNITS] = core::array::from_fn(|u| {
+            let mut t = init_transactions(BUS_ADDRESSES[u].1);
+            t.extend(scan_transactions(BUS_ADDRESSES[u].1, counts[u]));
             Mock::new(&t)
         });
         let mut adcs = PolarizationAdcs::new(buses, AdcConfig::default());
@@ -334,9 +356,9 @@ mod tests {
         }
         let scan = scan.expect("scan completes");
         assert_eq!(scan.counts, counts);
-        assert_eq!(scan.saturated, [0, 0, 0b1001, 0]);
+        assert_eq!(scan.saturated, [0, 0, 0b1001, 0, 0, 0, 0b1000, 0]);
         assert!(scan.errors.iter().all(|e| e.is_none()));
-        assert_eq!(scan.ok_units().count(), 4);
+        assert_eq!(scan.ok_units().count(), UNITS);
         for mut b in adcs.destroy() {
             b.done();
         }
@@ -344,14 +366,14 @@ mod tests {
 
     #[test]
     fn a_nacking_adc_fails_only_its_unit() {
-        let counts = [[1, 2, 3, 4], [0; 4], [5, 6, 7, 8], [9, 10, 11, 12]];
+        let counts: [[i16; 4]; UNITS] = core::array::from_fn(|u| if u == 1 { [0; 4] } else { [1, 2, 3, 4].map(|c| c + 4 * u as i16) });
         let nack = ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address);
-        let buses: [Mock; 4] = core::array::from_fn(|u| {
-            let mut t = init_transactions(ADDRESSES[u]);
+        let buses: [Mock; UNITS] = core::array::from_fn(|u| {
+            let mut t = init_transactions(BUS_ADDRESSES[u].1);
             if u == 1 {
-                t.push(T::write_read(ADDRESSES[u], vec![0x01], vec![0, 0]).with_error(nack));
+                t.push(T::write_read(BUS_ADDRESSES[u].1, vec![0x01], vec![0, 0]).with_error(nack));
             } else {
-                t.extend(scan_transactions(ADDRESSES[u], counts[u]));
+                t.extend(scan_transactions(BUS_ADDRESSES[u].1, counts[u]));
             }
             Mock::new(&t)
         });
@@ -361,8 +383,8 @@ mod tests {
         assert_eq!(scan.errors[1], Some(Error::Bus(nack)));
         assert_eq!(scan.counts[0], counts[0]);
         assert_eq!(scan.counts[2], counts[2]);
-        assert_eq!(scan.counts[3], counts[3]);
-        assert_eq!(scan.ok_units().collect::<Vec<_>>(), vec![0, 2, 3]);
+        assert_eq!(scan.counts[7], counts[7]);
+        assert_eq!(scan.ok_units().collect::<Vec<_>>(), vec![0, 2, 3, 4, 5, 6, 7]);
         for mut b in adcs.destroy() {
             b.done();
         }
@@ -370,7 +392,7 @@ mod tests {
 
     #[test]
     fn a_conversion_that_never_completes_is_not_ready() {
-        let addr = ADDRESSES[0];
+        let addr = BUS_ADDRESSES[0].1;
         let c0 = cfg(0b100);
         let mut t = init_transactions(addr);
         t.push(read_reg(addr, 0x01, c0));
@@ -381,14 +403,14 @@ mod tests {
             t.push(read_reg(addr, 0x01, c0 & !OS));
         }
         let mut bus0 = Mock::new(&t);
-        let others: Vec<Mock> = (1..4)
+        let others: Vec<Mock> = (1..UNITS)
             .map(|u| {
-                let mut t = init_transactions(ADDRESSES[u]);
-                t.extend(scan_transactions(ADDRESSES[u], [1, 2, 3, 4]));
+                let mut t = init_transactions(BUS_ADDRESSES[u].1);
+                t.extend(scan_transactions(BUS_ADDRESSES[u].1, [1, 2, 3, 4]));
                 Mock::new(&t)
             })
             .collect();
-        let buses = [bus0.clone(), others[0].clone(), others[1].clone(), others[2].clone()];
+        let buses: [Mock; UNITS] = core::array::from_fn(|u| if u == 0 { bus0.clone() } else { others[u - 1].clone() });
         let mut adcs = PolarizationAdcs::new(buses, AdcConfig { max_polls: 2, ..AdcConfig::default() });
         assert!(adcs.init().iter().all(|r| r.is_ok()));
         let scan = (0..20).find_map(|_| adcs.poll()).expect("scan completes");

@@ -3,7 +3,7 @@
 //! | module | chip | bus | crate |
 //! |---|---|---|---|
 //! | [`icm42688`] | TDK ICM-42688-P 6-axis IMU | SPI (`SpiDevice`) | written here: no maintained embedded-hal 1.0 crate gives register-level range/ODR control, data-ready and saturation reporting without heap |
-//! | [`ads1115`] | 4 x TI ADS1115 16-bit ADCs (polarization photodiodes) | I2C 0x48..0x4B | `ads1x1x` 0.3 (eldruin) for the chip; this module only schedules the 16 single-shot conversions |
+//! | [`ads1115`] | 8 x TI ADS1115 16-bit ADCs (polarization photodiodes) | I2C 0x48..0x4B on two buses | `ads1x1x` 0.3 (eldruin) for the chip; this module only schedules the 32 single-shot conversions |
 //! | [`dvl_a50`] | Water Linked DVL-A50 Doppler velocity log | UART (`embedded_io` `Read + ReadReady`, `Write` for commands) | written here: Water Linked's serial protocol (`wrz` / `wrs` sentences, CRC-8) has no no_std crate |
 //! | [`w25q`] | Winbond W25Q16JV 2 MiB NOR flash (the persistent store) | SPI (`SpiDevice`), CS 1 | written here: see the module doc |
 //! | [`ms5837`] | TE MS5837-30BA pressure (Blue Robotics Bar30) | I2C 0x76 | written here: no maintained no_std embedded-hal 1.0 crate does the PROM CRC-4 check and the datasheet's second-order compensation |

@@ -4,8 +4,9 @@
 //! sensor error models, whose grades come from `subnav_core::head` (the same numbers the
 //! firmware's default filter tuning uses; [`Scenario::imu_noise_scale`] mis-tunes on purpose).
 //!
-//! Buses (must match `firmware/src/bin/qemu`): SPI 0 CS 0 = ICM-42688-P; I2C 0 = ADS1115 at
-//! 0x48..0x4B (polarization unit u on 0x48 + u) and MS5837-30BA at 0x76; UART 0 = DVL-A50
+//! Buses (`subnav_wire::bridge::bus_map`, the boards' too): SPI 0 CS 0 = ICM-42688-P, CS 1 =
+//! the store's W25Q16JV; I2C 0 = ADS1115 of polarization units 0-3 at 0x48..0x4B and
+//! MS5837-30BA at 0x76; I2C 1 = ADS1115 of units 4-7 at 0x48..0x4B; UART 0 = DVL-A50
 //! (bottom track over a flat seafloor, water track without lock, the scenario's faults, scale
 //! and misalignment drawn per seed); UART 1 = the modem that delivers the host's position
 //! fixes at their arrival time (validity time + the scenario's latency) and the map's fixes;
@@ -20,7 +21,7 @@ use rand_distr::Distribution;
 use serde::{Deserialize, Serialize};
 use subnav_core::ephemeris::{self, Atmosphere, Observer};
 use subnav_core::head;
-use subnav_wire::bridge::{BusRequest, BusResponse};
+use subnav_wire::bridge::{BusRequest, BusResponse, bus_map};
 
 use crate::chips::camera::{CameraFaults, CameraImage, CameraModel};
 use crate::chips::dvl_a50::{DvlA50Model, DvlFaults, DvlGrade, DvlInput, DvlMountingModel};
@@ -758,7 +759,8 @@ impl SimHead {
     /// The same head with `chip` as its store's flash (e.g. a [`crate::chips::w25q::SharedFlash`]
     /// that outlives the run, as a real head's flash outlives a reboot).
     pub fn with_flash_chip(mut self, chip: impl crate::chips::SpiChip + 'static) -> Self {
-        self.chips.detach_spi(0, 1).attach_spi(0, 1, chip);
+        let (bus, cs) = bus_map::FLASH_SPI;
+        self.chips.detach_spi(bus, cs).attach_spi(bus, cs, chip);
         self
     }
 
@@ -804,9 +806,9 @@ impl SimHead {
         if let Some((a, b)) = sc.faults.imu_timeout_s {
             imu.faults.timeout_window_us = Some(((a * 1e6) as u64, (b * 1e6) as u64));
         }
-        chips.attach_spi(0, 0, imu);
+        chips.attach_spi(bus_map::IMU_SPI.0, bus_map::IMU_SPI.1, imu);
         // The store's flash: erased, in memory (`SimHead::with_flash` gives it a file).
-        chips.attach_spi(0, 1, crate::chips::w25q::W25qModel::new());
+        chips.attach_spi(bus_map::FLASH_SPI.0, bus_map::FLASH_SPI.1, crate::chips::w25q::W25qModel::new());
 
         // Polarization units: the field at the vehicle's depth and attitude, the units' true
         // calibration (nominal + residuals), shot/read noise; counts -> volts for the ADS1115.
@@ -831,7 +833,7 @@ impl SimHead {
             traj.clone(),
             Box::new(move |t| sc_sun.sun_ned(t)),
         ));
-        for (u, addr) in [0x48u8, 0x49, 0x4A, 0x4B].into_iter().enumerate() {
+        for (u, (bus, addr)) in bus_map::POLARIZATION_ADC_I2C.into_iter().enumerate() {
             let (n_units, true_cal, source, sc2) = (units.len(), true_cal.clone(), source.clone(), sc.clone());
             let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ (0x3333 + u as u64));
             let model = Ads1115Model::new(addr, move |t_us| {
@@ -845,7 +847,7 @@ impl SimHead {
                 };
                 counts.map(|c| c * volts_per_count)
             });
-            chips.attach_i2c(0, model);
+            chips.attach_i2c(bus, model);
         }
 
         // Depth: hydrostatic pressure at the true depth + noise (grade from shared::head).
@@ -860,10 +862,10 @@ impl SimHead {
             depth.faults =
                 crate::chips::BusFaults::seeded(sc.seed ^ 0x5555).with_nack_probability(sc.faults.depth_nack_probability, sc.seed ^ 0x5555);
         }
-        chips.attach_i2c(0, depth);
+        chips.attach_i2c(bus_map::DEPTH_I2C.0, depth);
 
         if let Some(plan) = sc.dvl {
-            chips.attach_uart(0, dvl_model(sc, plan, traj.clone()));
+            chips.attach_uart(bus_map::DVL_UART, dvl_model(sc, plan, traj.clone()));
         }
         let mut frames = fix_frames(sc);
         frames.extend(commands);
@@ -882,14 +884,14 @@ impl SimHead {
                     }
                 }),
             );
-            chips.attach_gpio(0, camera);
+            chips.attach_gpio(bus_map::CAMERA_TRIGGER_GPIO, camera);
             modem = modem
                 .with_live_source(Box::new(move |t_us| if faults.host_down(t_us as f64 * 1e-6) { Vec::new() } else { map.poll(t_us) }));
         }
         if let Some(live) = live {
             modem = modem.with_live_source(live);
         }
-        chips.attach_uart(1, modem);
+        chips.attach_uart(bus_map::MODEM_UART, modem);
         SimHead { chips, boot_world_us: 0, last_world_us: 0, last_head_us: 0, head_resets: 0 }
     }
 }

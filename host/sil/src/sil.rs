@@ -22,7 +22,7 @@ use subnav_firmware::drivers::w25q::W25q;
 use subnav_firmware::head_suite::HeadSuite;
 use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
-use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME};
+use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME, bus_map};
 use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
 
 use super::dive::{DiveResult, LiveStatus, evaluate};
@@ -260,7 +260,9 @@ fn run_native_on(
     let bridge = RefCell::new(BridgeClient::new(link));
     bridge.borrow_mut().max_polls = 4;
     // The store on SPI 0 / CS 1, loaded before the boot message, as on the QEMU board.
-    let mut store = W25q::new(BridgeSpi::new(&bridge, 0, 1)).map(FlashStore::new).map_err(|e| FailedStore(e.fault_kind()));
+    let mut store = W25q::new(BridgeSpi::new(&bridge, bus_map::FLASH_SPI.0, bus_map::FLASH_SPI.1))
+        .map(FlashStore::new)
+        .map_err(|e| FailedStore(e.fault_kind()));
     let store: &mut dyn RecordStore = match &mut store {
         Ok(s) => s,
         Err(f) => f,
@@ -272,14 +274,15 @@ fn run_native_on(
     }
     let mut delay = BridgeDelay::new(&bridge);
     let suite = HeadSuite::new(
-        BridgeSpi::new(&bridge, 0, 0),
-        core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
-        BridgeI2c::new(&bridge, 0),
-        Some(BridgeUart::new(&bridge, 0)),
+        BridgeSpi::new(&bridge, bus_map::IMU_SPI.0, bus_map::IMU_SPI.1),
+        core::array::from_fn(|u| BridgeI2c::new(&bridge, bus_map::POLARIZATION_ADC_I2C[u].0)),
+        BridgeI2c::new(&bridge, bus_map::DEPTH_I2C.0),
+        Some(BridgeUart::new(&bridge, bus_map::DVL_UART)),
         &mut delay,
     )
-    .with_camera_trigger(BridgePin::new(&bridge, 0));
-    let mut board = SilBoard { t_us: 0, bridge: &bridge, modem: BridgeUart::new(&bridge, 1), modem_reads: 0, suite, store, sink };
+    .with_camera_trigger(BridgePin::new(&bridge, bus_map::CAMERA_TRIGGER_GPIO));
+    let mut board =
+        SilBoard { t_us: 0, bridge: &bridge, modem: BridgeUart::new(&bridge, bus_map::MODEM_UART), modem_reads: 0, suite, store, sink };
     // The board loop of the boards, on the run's logical time: one tick per pass.
     let mut board_loop = BoardLoop::new(CatchUp::EveryTick);
     let end_ms = (sc.duration_s * 1000.0).round() as u64;

@@ -37,7 +37,7 @@ fn every_bad_field_is_refused_with_its_name() {
         ("position_fixes.sigma_m", Box::new(|v| v["position_fixes"]["sigma_m"] = json!(-2.0))),
         ("faults.imu_nack_s", Box::new(|v| v["faults"]["imu_nack_s"] = json!([101.0, 100.0]))),
         ("faults.imu_stuck_axis", Box::new(|v| v["faults"]["imu_stuck_axis"] = json!([10.0, 9]))),
-        ("faults.occluded_unit", Box::new(|v| v["faults"]["occluded_unit"] = json!([30.0, 40.0, 7]))),
+        ("faults.occluded_unit", Box::new(|v| v["faults"]["occluded_unit"] = json!([30.0, 40.0, subnav_core::head::POLARIZATION_UNITS]))),
         ("faults.occluded_unit", Box::new(|v| v["faults"]["occluded_unit"] = json!([40.0, 30.0, 1]))),
         ("dvl.seafloor_depth_m", Box::new(|v| v["dvl"]["seafloor_depth_m"] = json!(5.0))),
         ("dvl.dropout_probability", Box::new(|v| v["dvl"]["dropout_probability"] = json!(1.5))),

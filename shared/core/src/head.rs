@@ -19,8 +19,13 @@ pub const DEPTH_RATE_HZ: u32 = 10;
 /// Camera trigger rate (the downward polarization camera the host's topological map uses).
 pub const CAMERA_RATE_HZ: u32 = 2;
 
-/// Polarization units on the head: a ring around the body z axis, looking slightly up.
-pub const POLARIZATION_UNITS: usize = 4;
+/// Polarization units on the head: a ring around the body z axis, looking slightly up, 45 deg
+/// apart. Eight, not four: the real light field departs from single scattering in a pattern
+/// mirror-symmetric about the solar plane, and eight units evenly spaced cancel most of what
+/// the departure table leaves (clear water, sun 60 deg from the zenith, 5 m: 0.16 deg heading
+/// RMSE against 0.55 with four; docs/PERFORMANCE.md, "The compass in an independent light
+/// field"). Hardware: eight ADS1115 on two I2C buses (`subnav_wire::bridge::bus_map`).
+pub const POLARIZATION_UNITS: usize = 8;
 /// Elevation of each unit's viewing direction above the body's horizontal plane: 15 deg keeps
 /// the view outside the Snell window (which reaches ~48.6 deg from the zenith), where the light
 /// is scattered sunlight with a clean single-scattering e-vector.

@@ -188,10 +188,44 @@ bounded_bytes_serde!(ReadData, MAX_OPS * MAX_OP_BYTES);
 pub const MAX_REQUEST_FRAME: usize = max_frame_len(BusRequest::POSTCARD_MAX_SIZE);
 pub const MAX_RESPONSE_FRAME: usize = max_frame_len(BusResponse::POSTCARD_MAX_SIZE);
 
+/// The sensor head's bus map, once: which chip sits on which bridge bus, for the QEMU board,
+/// the host-native board (`subnav-sil`) and the simulated chips alike (the STM32 board maps
+/// bridge bus `n` to its own peripherals: I2C 0 = I2C1, I2C 1 = I2C3, SPI 0 = SPI1 for the IMU
+/// and SPI2 for the flash, UART 0 = USART3; `firmware/src/bin/stm32f4.rs`).
+pub mod bus_map {
+    /// (SPI bus, chip select) of the ICM-42688-P IMU.
+    pub const IMU_SPI: (u8, u8) = (0, 0);
+    /// (SPI bus, chip select) of the W25Q16JV store flash.
+    pub const FLASH_SPI: (u8, u8) = (0, 1);
+    /// (I2C bus, address) of polarization unit `u`'s ADS1115. The chip has four addresses
+    /// (ADDR pin to GND, VDD, SDA, SCL), so eight units take two buses, four on each.
+    pub const POLARIZATION_ADC_I2C: [(u8, u8); 8] =
+        [(0, 0x48), (0, 0x49), (0, 0x4A), (0, 0x4B), (1, 0x48), (1, 0x49), (1, 0x4A), (1, 0x4B)];
+    /// (I2C bus, address) of the MS5837-30BA depth sensor.
+    pub const DEPTH_I2C: (u8, u8) = (0, 0x76);
+    /// UART of the DVL-A50.
+    pub const DVL_UART: u8 = 0;
+    /// UART of the acoustic modem that brings position fixes (the simulated dives).
+    pub const MODEM_UART: u8 = 1;
+    /// Digital output of the camera's trigger line.
+    pub const CAMERA_TRIGGER_GPIO: u8 = 0;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::{decode_in_place, encode};
+
+    #[test]
+    fn no_two_chips_share_a_bus_address() {
+        use bus_map::*;
+        let mut i2c = [DEPTH_I2C; 9];
+        i2c[..8].copy_from_slice(&POLARIZATION_ADC_I2C);
+        i2c.sort_unstable();
+        assert!(i2c.windows(2).all(|w| w[0] != w[1]), "two I2C chips on one bus and address");
+        assert_ne!(IMU_SPI, FLASH_SPI);
+        assert_ne!(DVL_UART, MODEM_UART);
+    }
 
     #[test]
     fn frames_carry_only_the_used_bytes_and_full_ones_still_fit() {

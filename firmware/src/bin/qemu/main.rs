@@ -60,6 +60,7 @@ use subnav_firmware::sensors::SensorSuite;
 use subnav_firmware::store::{FailedStore, FlashStore, NoStore, RecordStore};
 use subnav_firmware::time::TickClock;
 use subnav_firmware::{App, TelemetrySink};
+use subnav_wire::bridge::bus_map;
 use subnav_wire::{Board, Command, ConfigItem, Downlink, ResetCause};
 
 mod cmsdk_uart;
@@ -227,7 +228,7 @@ fn main() -> ! {
     // The store: the W25Q on SPI 0 / CS 1 (through the bridge); none without a bridge.
     let (mut flash_store, mut failed_store, mut no_store) = (None, None, NoStore);
     let store: &mut dyn RecordStore = if has_bridge {
-        match W25q::new(BridgeSpi::new(&bridge, 0, 1)) {
+        match W25q::new(BridgeSpi::new(&bridge, bus_map::FLASH_SPI.0, bus_map::FLASH_SPI.1)) {
             Ok(flash) => flash_store.insert(FlashStore::new(flash)),
             Err(e) => failed_store.insert(FailedStore(e.fault_kind())),
         }
@@ -259,13 +260,13 @@ fn main() -> ! {
     let mut suite = has_bridge.then(|| {
         let mut delay = BridgeDelay::new(&bridge);
         let suite = HeadSuite::new(
-            BridgeSpi::new(&bridge, 0, 0),
-            core::array::from_fn(|_| BridgeI2c::new(&bridge, 0)),
-            BridgeI2c::new(&bridge, 0),
-            Some(BridgeUart::new(&bridge, 0)),
+            BridgeSpi::new(&bridge, bus_map::IMU_SPI.0, bus_map::IMU_SPI.1),
+            core::array::from_fn(|u| BridgeI2c::new(&bridge, bus_map::POLARIZATION_ADC_I2C[u].0)),
+            BridgeI2c::new(&bridge, bus_map::DEPTH_I2C.0),
+            Some(BridgeUart::new(&bridge, bus_map::DVL_UART)),
             &mut delay,
         )
-        .with_camera_trigger(BridgePin::new(&bridge, 0));
+        .with_camera_trigger(BridgePin::new(&bridge, bus_map::CAMERA_TRIGGER_GPIO));
         defmt::info!(
             "sensor init: imu {=?} polarization {=?} depth {=?}",
             suite.init.imu.is_none(),
@@ -277,7 +278,7 @@ fn main() -> ! {
 
     // The modem that brings the host's position fixes in a simulated dive (bridge UART 1: read
     // on the firmware's logical time, so the run stays deterministic).
-    let modem = has_bridge.then(|| BridgeUart::new(&bridge, 1));
+    let modem = has_bridge.then(|| BridgeUart::new(&bridge, bus_map::MODEM_UART));
     let mut board = QemuBoard {
         clock,
         uart,

@@ -10,7 +10,7 @@
 //! | model | chip | bus | input |
 //! |---|---|---|---|
 //! | [`icm42688::Icm42688Model`] | ICM-42688-P IMU | SPI | [`icm42688::ImuInput`] (body FRD rates / specific force, temperature) |
-//! | [`ads1115::Ads1115Model`] | ADS1115 ADC | I2C 0x48..0x4B | volts on AIN0..AIN3 |
+//! | [`ads1115::Ads1115Model`] | ADS1115 ADC | I2C 0x48..0x4B (two buses: `bus_map`) | volts on AIN0..AIN3 |
 //! | [`ms5837::Ms5837Model`] | MS5837-30BA | I2C 0x76 | [`ms5837::PressureInput`] (absolute Pa, deg C) |
 //! | [`dvl_a50::DvlA50Model`] | Water Linked DVL-A50 | UART 0 | [`dvl_a50::DvlInput`] (body velocity and rate, altitude, current) |
 //! | [`camera::CameraModel`] | downward polarization camera (IMX250MZR-class) | trigger on GPIO 0 | the rendered seafloor at the truth pose of each trigger |
@@ -34,7 +34,9 @@
 //! ```ignore
 //! let mut chips = ChipSet::new();
 //! chips.attach_spi(0, 0, Icm42688Model::new(move |t_us| imu_truth(t_us)));
-//! for u in 0..4 { chips.attach_i2c(0, Ads1115Model::new(0x48 + u, move |t_us| photodiode_volts(u, t_us))); }
+//! for (u, (bus, addr)) in bus_map::POLARIZATION_ADC_I2C.into_iter().enumerate() {
+//!     chips.attach_i2c(bus, Ads1115Model::new(addr, move |t_us| photodiode_volts(u, t_us)));
+//! }
 //! chips.attach_i2c(0, Ms5837Model::new(move |t_us| PressureInput { pressure_pa: p(t_us), temp_c: 12.0 }));
 //! let response = chips.handle(&request);             // or give `Box::new(chips)` to the QEMU runner
 //! ```

@@ -250,12 +250,24 @@ pub fn observe_units(
     if units.len() != counts.len() || units.len() > MAX_UNITS {
         return Err(NoFix::BadInput);
     }
+    observe_pairs(units.iter().zip(counts), cfg)
+}
+
+/// As [`observe_units`], the units given as (model, counts) pairs; more than [`MAX_UNITS`] is
+/// `BadInput`.
+pub fn observe_pairs<'a>(
+    pairs: impl IntoIterator<Item = (&'a UnitModel, &'a [i16; CHANNELS])>,
+    cfg: &CompassConfig,
+) -> Result<heapless::Vec<UnitObservation, MAX_UNITS>, NoFix> {
     let mut good = heapless::Vec::new();
     let mut rejects = [0u8; 4]; // dark, saturated, low dolp, non-finite
-    for (u, c) in units.iter().zip(counts) {
+    for (i, (u, c)) in pairs.into_iter().enumerate() {
+        if i >= MAX_UNITS {
+            return Err(NoFix::BadInput);
+        }
         match u.observe(c, cfg.min_s0, cfg.min_dolp) {
             Ok(o) => {
-                // Capacity equals MAX_UNITS and units.len() <= MAX_UNITS.
+                // Capacity equals MAX_UNITS and at most MAX_UNITS pairs reach here.
                 let _ = good.push(o);
             }
             Err(r) => {
@@ -400,8 +412,27 @@ pub struct CompassInput<'a> {
 
 /// The whole solve. On `Err`, the sun measurement is returned when it was made (e.g. `NoTime`).
 pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
+    solve_observed(|| observe_units(units, input.counts, cfg), input, cfg)
+}
+
+/// As [`solve`], the units given as (model, counts) pairs and `input.counts` unused: the
+/// firmware passes the units that were read without copying their models (about 150 B each,
+/// on the stack at the board's peak).
+pub fn solve_pairs<'a>(
+    pairs: impl IntoIterator<Item = (&'a UnitModel, &'a [i16; CHANNELS])>,
+    input: &CompassInput<'_>,
+    cfg: &CompassConfig,
+) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
+    solve_observed(|| observe_pairs(pairs, cfg), input, cfg)
+}
+
+fn solve_observed(
+    observe: impl FnOnce() -> Result<heapless::Vec<UnitObservation, MAX_UNITS>, NoFix>,
+    input: &CompassInput<'_>,
+    cfg: &CompassConfig,
+) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
     let up = up_from_accel(input.accel_body_mps2, cfg).map_err(|e| (e, None))?;
-    let obs = observe_units(units, input.counts, cfg).map_err(|e| (e, None))?;
+    let obs = observe().map_err(|e| (e, None))?;
     // With a departure table and the time and place, the sun's zenith from the ephemeris (the
     // table is indexed by it); without them the departure is left out of the sun vector.
     let sun_zenith_air = match (cfg.aop_departure, input.unix_us, input.observer) {

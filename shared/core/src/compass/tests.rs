@@ -115,6 +115,26 @@ fn heading_with_tilt_is_recovered() {
     }
 }
 
+/// The pairs form (what the firmware calls, with the units that were read) is the same solve:
+/// the same fix to the bit on a subset of units, and more than `MAX_UNITS` pairs refused.
+#[test]
+fn solving_by_pairs_is_the_same_solve() {
+    let u = units();
+    let sc = scene(&u, 4.0 * DEG, -6.0 * DEG, 77.0 * DEG, 1.0, 1.0, Some(5));
+    let read = [0usize, 2, 3, 5, 6, 7];
+    let sub_units: heapless::Vec<UnitModel, N_UNITS> = read.iter().map(|&i| u[i]).collect();
+    let sub_counts: heapless::Vec<[i16; 4], N_UNITS> = read.iter().map(|&i| sc.counts[i]).collect();
+    let input =
+        CompassInput { counts: &sub_counts, accel_body_mps2: sc.accel, unix_us: Some(T_US), observer: Some(place()), delta_t_s: 70.0 };
+    let by_slices = solve(&sub_units, &input, &cfg()).unwrap();
+    let by_pairs = solve_pairs(read.iter().map(|&i| (&u[i], &sc.counts[i])), &CompassInput { counts: &[], ..input }, &cfg()).unwrap();
+    assert_eq!(by_slices.heading_rad.to_bits(), by_pairs.heading_rad.to_bits());
+    assert_eq!(by_slices.sigma_heading_rad.to_bits(), by_pairs.sigma_heading_rad.to_bits());
+    assert_eq!(by_pairs.sun.sun.outliers, 1);
+    let too_many = (0..MAX_UNITS + 1).map(|i| (&u[i % N_UNITS], &sc.counts[i % N_UNITS]));
+    assert_eq!(no_fix(solve_pairs(too_many, &input, &cfg())), NoFix::BadInput);
+}
+
 #[test]
 fn outlier_unit_is_rejected() {
     let u = units();
