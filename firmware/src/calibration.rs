@@ -49,8 +49,7 @@ fn matrix(m: [f32; 6]) -> Result<Matrix3<f32>, Refusal> {
 
 /// The calibrated model of polarization unit `p.unit` (the head's geometry, the record's channels).
 pub fn unit_model(p: &PolarizationCalibration) -> Result<UnitModel, Refusal> {
-    let nominal = head::polarization_units();
-    let Some(Some(geometry)) = nominal.get(usize::from(p.unit)) else { return Err(Refusal::OutOfRange) };
+    let Some(geometry) = head::polarization_unit(usize::from(p.unit)) else { return Err(Refusal::OutOfRange) };
     let all: [&[f32; 4]; 4] = [&p.gain, &p.offset_counts, &p.polarizer_rad, &p.extinction_ratio];
     for v in all {
         finite(v)?;

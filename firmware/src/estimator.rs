@@ -26,7 +26,7 @@
 //! walked the position away. Depth is positive down (NED z).
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
-use subnav_core::compass::{self, CompassInput, UnitModel};
+use subnav_core::compass::{self, ChannelCal, CompassInput, UnitModel};
 use subnav_core::ephemeris::{Observer, delta_t_estimate_s};
 use subnav_core::head;
 use subnav_core::nav::dvl::DvlMeasurement;
@@ -293,7 +293,10 @@ impl Align {
 pub struct Estimator {
     cfg: NavConfig,
     compass_cfg: compass::CompassConfig,
-    units: [Option<UnitModel>; head::POLARIZATION_UNITS],
+    /// Each unit's channel calibration (`None`: no valid model); the model (geometry, noise, the
+    /// channel model's inverse) is built from it where used: the 88 B per unit it would add
+    /// sit in the board loop's frame at the stack peak.
+    unit_channels: [Option<[ChannelCal; compass::CHANNELS]>; head::POLARIZATION_UNITS],
     align: Align,
     /// The navigation filter's storage (built once, at construction: `None` only if the
     /// configuration is invalid) and whether it is running (after the alignment). Re-used in
@@ -369,7 +372,7 @@ impl Estimator {
         Self {
             cfg,
             compass_cfg: head::compass_config(),
-            units: head::polarization_units(),
+            unit_channels: core::array::from_fn(|i| head::polarization_unit(i).map(|m| m.channels)),
             align: Align::default(),
             nav: filter_storage(cfg),
             running: false,
@@ -405,15 +408,17 @@ impl Estimator {
 
     /// Use `model` for polarization unit `unit` (a stored calibration; `None`: the nominal model).
     pub fn set_polarization_unit(&mut self, unit: usize, model: Option<UnitModel>) {
-        let nominal = head::polarization_units();
-        if let (Some(slot), Some(n)) = (self.units.get_mut(unit), nominal.get(unit)) {
-            *slot = model.or(*n);
+        if let Some(slot) = self.unit_channels.get_mut(unit) {
+            *slot = model.or_else(|| head::polarization_unit(unit)).map(|m| m.channels);
         }
     }
 
-    /// The model polarization unit `unit` is solved with.
-    pub fn units_model(&self, unit: usize) -> Option<&UnitModel> {
-        self.units.get(unit).and_then(|u| u.as_ref())
+    /// The model polarization unit `unit` is solved with (the head's geometry and noise, its
+    /// channel calibration).
+    pub fn units_model(&self, unit: usize) -> Option<UnitModel> {
+        let channels = (*self.unit_channels.get(unit)?)?;
+        let (view, axis0) = head::polarization_unit_geometry(unit);
+        UnitModel::new(view, axis0, channels, head::PHOTODIODE_NOISE).ok()
     }
 
     /// The IMU calibration applied to every sample (`None`: raw samples are body samples).
@@ -661,9 +666,8 @@ impl Estimator {
         utc_unix_us: Option<i64>,
         observer: Option<Observer>,
     ) -> CompassReport {
-        // The units that were read and have a model, by reference (no copy of the models).
-        let units = &self.units;
-        let pairs = readings.iter().filter_map(|(idx, c)| units.get(*idx).and_then(Option::as_ref).map(|u| (u, c)));
+        // The units that were read and have a model, each built as the solver takes it.
+        let pairs = readings.iter().filter_map(|(idx, c)| self.units_model(*idx).map(|u| (u, c)));
         let accel = if self.accel_seen { self.accel_lp } else { [f32::NAN; 3] };
         let input = CompassInput {
             counts: &[],

@@ -80,11 +80,22 @@ pub const PHOTODIODE_NOISE: NoiseModel = NoiseModel { read_sigma_counts: 3.0, el
 
 /// The polarization units with nominal calibration.
 pub fn polarization_units() -> [Option<UnitModel>; POLARIZATION_UNITS] {
-    core::array::from_fn(|i| {
-        let (view, axis0) = ring_geometry(i, POLARIZATION_UNITS, POLARIZATION_UNIT_ELEVATION_RAD);
-        UnitModel::nominal(view, axis0, POLARIZATION_GAIN_COUNTS, POLARIZATION_OFFSET_COUNTS, POLARIZER_EXTINCTION_RATIO, PHOTODIODE_NOISE)
-            .ok()
-    })
+    core::array::from_fn(polarization_unit)
+}
+
+/// Unit `i` with nominal calibration (`None` past the last unit): one model, not the eight
+/// (the firmware's boot path applies stored calibrations one unit at a time).
+pub fn polarization_unit(i: usize) -> Option<UnitModel> {
+    if i >= POLARIZATION_UNITS {
+        return None;
+    }
+    let (view, axis0) = polarization_unit_geometry(i);
+    UnitModel::nominal(view, axis0, POLARIZATION_GAIN_COUNTS, POLARIZATION_OFFSET_COUNTS, POLARIZER_EXTINCTION_RATIO, PHOTODIODE_NOISE).ok()
+}
+
+/// Unit `i`'s viewing direction and polarizer reference axis (body FRD unit vectors).
+pub fn polarization_unit_geometry(i: usize) -> ([f32; 3], [f32; 3]) {
+    ring_geometry(i, POLARIZATION_UNITS, POLARIZATION_UNIT_ELEVATION_RAD)
 }
 
 /// The AoP departure of the real field from single scattering, times DoLP (rad): the

@@ -255,8 +255,8 @@ pub fn observe_units(
 
 /// As [`observe_units`], the units given as (model, counts) pairs; more than [`MAX_UNITS`] is
 /// `BadInput`.
-pub fn observe_pairs<'a>(
-    pairs: impl IntoIterator<Item = (&'a UnitModel, &'a [i16; CHANNELS])>,
+pub fn observe_pairs<'a, U: core::borrow::Borrow<UnitModel>>(
+    pairs: impl IntoIterator<Item = (U, &'a [i16; CHANNELS])>,
     cfg: &CompassConfig,
 ) -> Result<heapless::Vec<UnitObservation, MAX_UNITS>, NoFix> {
     let mut good = heapless::Vec::new();
@@ -265,7 +265,7 @@ pub fn observe_pairs<'a>(
         if i >= MAX_UNITS {
             return Err(NoFix::BadInput);
         }
-        match u.observe(c, cfg.min_s0, cfg.min_dolp) {
+        match u.borrow().observe(c, cfg.min_s0, cfg.min_dolp) {
             Ok(o) => {
                 // Capacity equals MAX_UNITS and at most MAX_UNITS pairs reach here.
                 let _ = good.push(o);
@@ -416,10 +416,10 @@ pub fn solve(units: &[UnitModel], input: &CompassInput<'_>, cfg: &CompassConfig)
 }
 
 /// As [`solve`], the units given as (model, counts) pairs and `input.counts` unused: the
-/// firmware passes the units that were read without copying their models (about 150 B each,
-/// on the stack at the board's peak).
-pub fn solve_pairs<'a>(
-    pairs: impl IntoIterator<Item = (&'a UnitModel, &'a [i16; CHANNELS])>,
+/// firmware passes the units that were read, each model built as it is observed (no array of
+/// models, about 150 B each, on its stack).
+pub fn solve_pairs<'a, U: core::borrow::Borrow<UnitModel>>(
+    pairs: impl IntoIterator<Item = (U, &'a [i16; CHANNELS])>,
     input: &CompassInput<'_>,
     cfg: &CompassConfig,
 ) -> Result<HeadingFix, (NoFix, Option<SunMeasurement>)> {
