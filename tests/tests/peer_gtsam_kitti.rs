@@ -6,8 +6,10 @@
 //!    further decrease) to 1e-6 m / 1e-6 rad, and the
 //!    incremental solvers (ISAM2, IncrementalFixedLagSmoother) run on it in the same run.
 //! 2. The sensor head's navigation filter on the same IMU and fixes stays finite and bounded.
-//! 3. Multipath-like jumps on fixes are inflated by the graph's gate, and the gated batch track
-//!    stays closer to the recorded positions at the jumped epochs than the ungated one.
+//! 3. The graph's gate makes one decision per fix after the first, and none without the gate;
+//!    with multipath-like jumps the gated and ungated batch tracks are printed, not compared (on
+//!    this 60-s stretch the default gate, issue 36's neighbours rule, gives the held-out RMSE of
+//!    no gate, 21.89 m). The gate's check is the whole-drive test at the end.
 //! The full 470-s run with its tables: `cargo run --release -p subnav-fgo --example kitti`
 //! (docs/PERFORMANCE.md, "Real data: KITTI").
 
@@ -173,6 +175,7 @@ fn kitti_full_clean_gate_costs_little_and_beats_off_with_jumps_over_draws() {
     );
 
     const DRAWS: u64 = 8;
+    // better than off by more than 1 mm (the printed digit), as the example counts
     let (mut sum, mut wins) = ([0.0f64; 4], [0usize; 2]);
     for seed in 1..=DRAWS {
         let faults = Faults { jump_probability: 0.2, jump_m: 20.0, seed, ..Default::default() };
@@ -182,8 +185,8 @@ fn kitti_full_clean_gate_costs_little_and_beats_off_with_jumps_over_draws() {
         for (s, x) in sum.iter_mut().zip([b_on, b_off, t_on, t_off]) {
             *s += x / DRAWS as f64;
         }
-        wins[0] += usize::from(b_on < b_off);
-        wins[1] += usize::from(t_on < t_off);
+        wins[0] += usize::from(b_on < b_off - 1e-3);
+        wins[1] += usize::from(t_on < t_off - 1e-3);
     }
     let [b_on, b_off, t_on, t_off] = sum;
     println!(
