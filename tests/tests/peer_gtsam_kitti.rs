@@ -6,8 +6,10 @@
 //!    further decrease) to 1e-6 m / 1e-6 rad, and the
 //!    incremental solvers (ISAM2, IncrementalFixedLagSmoother) run on it in the same run.
 //! 2. The sensor head's navigation filter on the same IMU and fixes stays finite and bounded.
-//! 3. Multipath-like jumps on fixes are inflated by the graph's gate, and the gated batch track
-//!    stays closer to the recorded positions at the jumped epochs than the ungated one.
+//! 3. The graph's gate makes one decision per fix after the first, and none without the gate;
+//!    with multipath-like jumps the gated and ungated batch tracks are printed, not compared (on
+//!    this 60-s stretch the default gate, issue 36's neighbours rule, gives the held-out RMSE of
+//!    no gate, 21.89 m). The gate's check is the whole-drive test at the end.
 //! The full 470-s run with its tables: `cargo run --release -p subnav-fgo --example kitti`
 //! (docs/PERFORMANCE.md, "Real data: KITTI").
 
@@ -138,53 +140,59 @@ fn kitti_60s_filter_runs_and_gate_handles_a_jump() {
     println!("worst error at a jumped epoch: gated {:.2} m, ungated {:.2} m", at_jumps(&g), at_jumps(&u));
 }
 
-/// The whole drive (470 s): with clean fixes the adaptive gate (the default, issue 36) costs at
-/// most 10 % of held-out RMSE against no gate, in the batch and in real time (measured: 1.206 vs
-/// 1.395 m and 12.46 vs 12.27 m, docs/PERFORMANCE.md); with 20 % of the fixes jumped by 10-20 m
-/// the gated batch beats the ungated one (measured 4.61 vs 4.96 m; this draw of the jumps, seed 1:
-/// over 8 draws only 2 of 8, `--example kitti -- --jump-seeds 8`). Not asserted because it does
-/// not hold: the real-time smoother with the jumps (28.7 m gated vs 22.8 m ungated; 0 of 8 draws).
+/// Issue 36's gate item on the whole drive (470 s), with the default gate (adaptive, neighbours
+/// rule): with clean fixes it costs at most 10 % of held-out RMSE against no gate, in the batch
+/// and in real time (measured: 1.395 vs 1.395 m and 13.441 vs 12.274 m, docs/PERFORMANCE.md);
+/// with 20 % of the fixes jumped by 10-20 m it beats no gate on the mean over draws 1-8 of the
+/// jumps (the first eight, not chosen), in the batch and in real time (measured 5.017 vs 5.358 m
+/// and 22.279 vs 22.599 m; better in 5 and 6 of the 8 draws, worse in 1 and 2; draws 9-24 in
+/// docs/PERFORMANCE.md: `--example kitti -- --jump-seeds 8 --first-seed 9|17`). One draw alone
+/// does not decide it: on draw 1 the real time loses (24.88 vs 22.79 m).
 #[test]
-fn kitti_full_clean_adaptive_gate_costs_little_and_beats_off_with_jumps() {
-    use subnav_fgo::factors::Factor;
+fn kitti_full_clean_gate_costs_little_and_beats_off_with_jumps_over_draws() {
     let data = data();
     let on = KittiConfig::default();
     let off = KittiConfig { gating: GatingConfig { enabled: false, ..Default::default() }, ..Default::default() };
-    let sc = kitti_run::scenario(&data, &on).expect("scenario");
     let score = |cfg: &KittiConfig| {
+        let sc = kitti_run::scenario(&data, cfg).expect("scenario");
         let r = kitti_run::run_graph(&data, &sc, cfg).expect("graph");
         let b = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch)).rmse_heldout_m;
         let t = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime)).rmse_heldout_m;
-        (b, t, r.imu_scale)
+        (b, t, r)
     };
-    let (b_on, t_on, s) = score(&on);
+    let (b_on, t_on, r) = score(&on);
     let (b_off, t_off, _) = score(&off);
     println!(
-        "KITTI clean, held-out RMSE: batch gate on {b_on:.3} off {b_off:.3} m; real time on {t_on:.3} off {t_off:.3} m; IMU noise scale {s:.1}"
+        "KITTI clean, held-out RMSE: batch gate on {b_on:.3} off {b_off:.3} m; real time on {t_on:.3} off {t_off:.3} m; IMU noise scale {:.1} (tests only); taken out late {:?}",
+        r.estimated_imu_scale, r.realtime_taken_out
     );
     assert!(b_on <= 1.10 * b_off, "batch: gate on {b_on} m, off {b_off} m");
     assert!(t_on <= 1.10 * t_off, "real time: gate on {t_on} m, off {t_off} m");
-    assert!(s > 1.0, "the IMU noise of the metadata is too tight for this drive: scale {s}");
+    assert!(
+        r.estimated_imu_scale > 1.0,
+        "the IMU noise of the metadata is too tight for this drive: estimated scale {}",
+        r.estimated_imu_scale
+    );
 
-    let jumps = KittiConfig { faults: Faults { jump_probability: 0.2, jump_m: 20.0, seed: 1, ..Default::default() }, ..Default::default() };
-    let sc = kitti_run::scenario(&data, &jumps).expect("scenario");
-    let r = kitti_run::run_graph(&data, &sc, &jumps).expect("graph");
-    let gated = kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch)).rmse_heldout_m;
-    // no gate: the same batch problem without the inflations, at the IMU noise as given (one
-    // LM solve instead of a second smoother run; the same optimum as the ungated run's batch)
-    let mut factors = r.factors.clone();
-    for f in &mut factors {
-        if let Factor::Usbl(u) = f {
-            u.noise = u.noise.scaled(1.0 / u.kappa);
-            u.kappa = 1.0;
+    const DRAWS: u64 = 8;
+    // better than off by more than 1 mm (the printed digit), as the example counts
+    let (mut sum, mut wins) = ([0.0f64; 4], [0usize; 2]);
+    for seed in 1..=DRAWS {
+        let faults = Faults { jump_probability: 0.2, jump_m: 20.0, seed, ..Default::default() };
+        let (b_on, t_on, _) = score(&KittiConfig { faults: faults.clone(), ..on.clone() });
+        let (b_off, t_off, _) = score(&KittiConfig { faults, ..off.clone() });
+        println!("KITTI 20 % jumps, draw {seed}: batch on {b_on:.3} off {b_off:.3} m; real time on {t_on:.3} off {t_off:.3} m");
+        for (s, x) in sum.iter_mut().zip([b_on, b_off, t_on, t_off]) {
+            *s += x / DRAWS as f64;
         }
-        f.set_imu_noise_scale(1.0);
+        wins[0] += usize::from(b_on < b_off - 1e-3);
+        wins[1] += usize::from(t_on < t_off - 1e-3);
     }
-    let mut nodes = r.initial.clone();
-    subnav_fgo::solver::solve_lm(&mut nodes, &factors, &kitti_run::batch_lm_options()).expect("ungated batch");
-    let ungated = kitti_run::score(&sc.epochs, &kitti_run::positions(&nodes)).rmse_heldout_m;
-    let jumped: Vec<usize> = sc.epochs.iter().enumerate().filter(|(_, e)| e.jumped).map(|(i, _)| i).collect();
-    let flagged = r.factors.iter().filter(|f| matches!(f, Factor::Usbl(u) if u.kappa > 1.0 && jumped.contains(&u.node))).count();
-    println!("KITTI 20 % jumps: batch gate on {gated:.3} m, off {ungated:.3} m; {flagged} of {} jumped fixes inflated", jumped.len());
-    assert!(gated < ungated, "with the jumps: gated batch {gated} m, ungated {ungated} m");
+    let [b_on, b_off, t_on, t_off] = sum;
+    println!(
+        "KITTI 20 % jumps, mean over draws 1-{DRAWS}: batch on {b_on:.3} off {b_off:.3} m ({} of {DRAWS} better); real time on {t_on:.3} off {t_off:.3} m ({} of {DRAWS})",
+        wins[0], wins[1]
+    );
+    assert!(b_on < b_off, "with the jumps, batch: gate on {b_on} m, off {b_off} m (mean of {DRAWS} draws)");
+    assert!(t_on < t_off, "with the jumps, real time: gate on {t_on} m, off {t_off} m (mean of {DRAWS} draws)");
 }

@@ -8,7 +8,10 @@
 //! filter). `--jump-seeds N`: the 20 % jumps case drawn with seeds 1..=N, gate on and off (the
 //! table's jumps rows are seed 1: one draw of 8 jumps); `--first-seed K`: seeds K..K+N-1 instead
 //! (other draws, to check a rule chosen on 1..=N); `--oracle`: the gate-on runs take each jumped
-//! fix out when the next fix arrives (`kitti_run::Oracle::NextFix`, evaluation only).
+//! fix out when the next fix arrives (`kitti_run::Oracle::NextFix`, evaluation only);
+//! `--no-neighbours`: the gate-on runs with the adaptive gate before the neighbours rule
+//! (`GatingConfig { neighbours: false }`, the default until issue 36's fifth pass). The
+//! `--jump-seeds` table starts with the clean drive's figures (gate on and off, and their ratio).
 //! The data is read from that python's installed gtsam wheel (never copied).
 
 use std::path::PathBuf;
@@ -37,7 +40,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Some(n) = arg("--jump-seeds") {
         let first = arg("--first-seed").map_or(Ok(1), |k| k.parse())?;
         let oracle = if std::env::args().any(|a| a == "--oracle") { Oracle::NextFix } else { Oracle::None };
-        return jump_seeds(&data, &base, first, n.parse()?, oracle);
+        let gate = GatingConfig { neighbours: !std::env::args().any(|a| a == "--no-neighbours"), ..Default::default() };
+        return jump_seeds(&data, &base, first, n.parse()?, oracle, gate);
     }
     if std::env::args().any(|a| a == "--gates-only") {
         return gate_table(&data, &base);
@@ -178,14 +182,15 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
     let drops = Faults { dropouts_s: vec![(100.0, 160.0), (300.0, 360.0)], seed: 1, ..Default::default() };
     let both = Faults { dropouts_s: drops.dropouts_s.clone(), ..jumps.clone() };
     println!(
-        "| fixes | gate | batch held-out RMSE m | batch max m | real-time RMSE m | real-time max m | fixes inflated batch, real time / used | jumped fixes inflated batch, real time |\n|---|---|---|---|---|---|---|---|"
+        "| fixes | gate | batch held-out RMSE m | batch max m | real-time RMSE m | real-time max m | fixes inflated batch, real time / used | jumped fixes inflated batch, real time | real time, taken out one fix late (jumped) |\n|---|---|---|---|---|---|---|---|---|"
     );
     for (fname, faults) in
         [("clean", Faults::default()), ("20 % jumps 10-20 m", jumps), ("2 x 60 s dropouts", drops), ("jumps + dropouts", both)]
     {
         for (gname, gating) in [
             ("seed (fixed chi2)", GatingConfig { enabled: true, adaptive: false, ..Default::default() }),
-            ("adaptive", GatingConfig::default()),
+            ("adaptive, fourth pass (no neighbours rule)", GatingConfig { neighbours: false, ..Default::default() }),
+            ("adaptive + neighbours rule (default)", GatingConfig::default()),
             ("off", GatingConfig { enabled: false, ..Default::default() }),
         ] {
             let cfg = KittiConfig { faults: faults.clone(), gating, ..base.clone() };
@@ -203,8 +208,10 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
                 .filter(|f| matches!(f, subnav_fgo::factors::Factor::Usbl(u) if u.kappa > 1.0 && jumped_nodes.contains(&u.node)))
                 .count();
             let jr = r.gate_log.decisions.iter().filter(|d| d.abnormal && jumped_t.iter().any(|t| (t - d.t_s).abs() < 1e-9)).count();
+            let late = r.realtime_taken_out.len();
+            let late_j = r.realtime_taken_out.iter().filter(|t| jumped_t.iter().any(|j| (*j - **t).abs() < 1e-9)).count();
             println!(
-                "| {fname} | {gname} | {:.3} | {:.3} | {:.3} | {:.3} | {}, {} / {used} | {jb}, {jr} / {} |",
+                "| {fname} | {gname} | {:.3} | {:.3} | {:.3} | {:.3} | {}, {} / {used} | {jb}, {jr} / {} | {late} ({late_j}) |",
                 b.rmse_heldout_m,
                 b.max_heldout_m,
                 t.rmse_heldout_m,
@@ -221,7 +228,9 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
     for (oname, oracle, never_used) in
         [("jumped fixes never used", Oracle::None, true), ("each jumped fix taken out when the next fix arrives", Oracle::NextFix, false)]
     {
-        for (gname, gating) in [("adaptive", GatingConfig::default()), ("off", GatingConfig { enabled: false, ..Default::default() })] {
+        for (gname, gating) in
+            [("default (neighbours rule)", GatingConfig::default()), ("off", GatingConfig { enabled: false, ..Default::default() })]
+        {
             let cfg = KittiConfig { faults: jumps.clone(), gating, oracle, ..base.clone() };
             let mut sc = kitti_run::scenario(data, &cfg)?;
             let roles: Vec<Role> = sc.epochs.iter().map(|e| e.role).collect();
@@ -240,20 +249,60 @@ fn gate_table(data: &kitti::KittiData, base: &KittiConfig) -> Result<(), Box<dyn
 
 /// The jumps case (20 % of the fixes, 10-20 m) over `n` draws from seed `first` on: held-out
 /// RMSE of the batch and the real time, adaptive gate and off, per seed and the mean; with
-/// `oracle` the gate-on runs also take out the jumped fixes as it says.
-fn jump_seeds(data: &kitti::KittiData, base: &KittiConfig, first: u64, n: u64, oracle: Oracle) -> Result<(), Box<dyn std::error::Error>> {
+/// `oracle` the gate-on runs also take out the jumped fixes as it says; `gate`: the gate-on
+/// configuration.
+fn jump_seeds(
+    data: &kitti::KittiData,
+    base: &KittiConfig,
+    first: u64,
+    n: u64,
+    oracle: Oracle,
+    gate: GatingConfig,
+) -> Result<(), Box<dyn std::error::Error>> {
     let on = if oracle == Oracle::None { "on" } else { "on + oracle" };
-    println!("| seed | jumps | batch {on} | batch off | real time {on} | real time off |\n|---|---|---|---|---|---|");
+    {
+        let mut row = Vec::new();
+        for enabled in [true, false] {
+            let cfg = KittiConfig { gating: GatingConfig { enabled, ..gate }, ..base.clone() };
+            let sc = kitti_run::scenario(data, &cfg)?;
+            let r = kitti_run::run_graph(data, &sc, &cfg)?;
+            row.push(kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch)).rmse_heldout_m);
+            row.push(kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime)).rmse_heldout_m);
+        }
+        println!(
+            "clean: batch on {:.3} off {:.3} (ratio {:.3}); real time on {:.3} off {:.3} (ratio {:.3})\n",
+            row[0],
+            row[2],
+            row[0] / row[2],
+            row[1],
+            row[3],
+            row[1] / row[3]
+        );
+    }
+    println!(
+        "| seed | jumps | batch {on} | batch off | real time {on} | real time off | batch: fixes out (jumped) | real time: taken out one fix late (jumped) |\n|---|---|---|---|---|---|---|---|"
+    );
     let mut sum = [0.0f64; 4];
-    let (mut b_wins, mut t_wins) = (0, 0);
+    // better / worse than off by more than 1 mm (the table's last digit), else equal
+    let (mut b_cmp, mut t_cmp) = ([0usize; 3], [0usize; 3]);
+    let cmp = |on: f64, off: f64| {
+        if on < off - 1e-3 {
+            0
+        } else if on > off + 1e-3 {
+            2
+        } else {
+            1
+        }
+    };
     for seed in first..first + n {
         let faults = Faults { jump_probability: 0.2, jump_m: 20.0, seed, ..Default::default() };
         let mut row = Vec::new();
         let mut jumps = 0;
+        let mut outs = String::new();
         for enabled in [true, false] {
             let cfg = KittiConfig {
                 faults: faults.clone(),
-                gating: GatingConfig { enabled, ..Default::default() },
+                gating: GatingConfig { enabled, ..gate },
                 oracle: if enabled { oracle } else { Oracle::None },
                 ..base.clone()
             };
@@ -262,17 +311,34 @@ fn jump_seeds(data: &kitti::KittiData, base: &KittiConfig, first: u64, n: u64, o
             let r = kitti_run::run_graph(data, &sc, &cfg)?;
             row.push(kitti_run::score(&sc.epochs, &kitti_run::positions(&r.batch)).rmse_heldout_m);
             row.push(kitti_run::score(&sc.epochs, &kitti_run::positions(&r.realtime)).rmse_heldout_m);
+            if enabled {
+                let jumped = |t: f64| sc.epochs.iter().any(|e| e.jumped && (e.t_s - t).abs() < 1e-9);
+                let b_out: Vec<f64> = r
+                    .factors
+                    .iter()
+                    .filter_map(|f| match f {
+                        subnav_fgo::factors::Factor::Usbl(u) if u.kappa >= subnav_fgo::gating::OUTLIER_KAPPA => Some(r.times[u.node]),
+                        _ => None,
+                    })
+                    .collect();
+                let bj = b_out.iter().filter(|t| jumped(**t)).count();
+                let tj = r.realtime_taken_out.iter().filter(|t| jumped(**t)).count();
+                outs = format!("{} ({bj}) | {} ({tj})", b_out.len(), r.realtime_taken_out.len());
+            }
         }
         let (b_on, t_on, b_off, t_off) = (row[0], row[1], row[2], row[3]);
-        b_wins += usize::from(b_on < b_off);
-        t_wins += usize::from(t_on < t_off);
+        b_cmp[cmp(b_on, b_off)] += 1;
+        t_cmp[cmp(t_on, t_off)] += 1;
         for (s, x) in sum.iter_mut().zip([b_on, b_off, t_on, t_off]) {
             *s += x;
         }
-        println!("| {seed} | {jumps} | {b_on:.3} | {b_off:.3} | {t_on:.3} | {t_off:.3} |");
+        println!("| {seed} | {jumps} | {b_on:.3} | {b_off:.3} | {t_on:.3} | {t_off:.3} | {outs} |");
     }
     let m = |i: usize| sum[i] / n as f64;
     println!("| mean | | {:.3} | {:.3} | {:.3} | {:.3} |", m(0), m(1), m(2), m(3));
-    println!("gate {on} better than off: batch in {b_wins} of {n} draws, real time in {t_wins} of {n}");
+    println!(
+        "gate {on} against off (better / equal to 1 mm / worse): batch {} / {} / {}, real time {} / {} / {} of {n} draws",
+        b_cmp[0], b_cmp[1], b_cmp[2], t_cmp[0], t_cmp[1], t_cmp[2]
+    );
     Ok(())
 }

@@ -235,15 +235,21 @@ pub struct GraphRun {
     /// batch re-decision, [`super::gating::robust_batch`]).
     pub batch_inflated: usize,
     pub batch_report: LmReport,
-    /// IMU noise variance scale of the batch problem (1: the metadata's noise), and the
-    /// smoother's at the end of the run (adaptive gate, [`super::gating::imu_noise_scale`]).
+    /// IMU noise variance scale of the batch problem (1: the metadata's noise; also 1 with the
+    /// neighbours rule, which keeps the IMU as given), the scale the batch's tests estimated
+    /// ([`super::gating::robust_batch`]), and the smoother's estimate at the end of the run
+    /// (adaptive gate, [`super::gating::imu_noise_scale`]).
     pub imu_scale: f64,
+    pub estimated_imu_scale: f64,
     pub realtime_imu_scale: f64,
     /// Thread CPU time of all smoother updates, and of the batch LM, s.
     pub smoother_cpu_s: f64,
     pub batch_cpu_s: f64,
     pub smoother_wall_s: f64,
     pub batch_wall_s: f64,
+    /// Times of the fixes the real-time neighbours rule took out one fix late
+    /// (`Smoother::delayed`).
+    pub realtime_taken_out: Vec<f64>,
 }
 
 pub fn log_config(sc: &Scenario) -> LogConfig {
@@ -300,6 +306,7 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     }
     let smoother_wall_s = t_start.elapsed().as_secs_f64();
     let smoother_cpu_s = sm.cpu_s.iter().sum();
+    let realtime_taken_out = sm.delayed.iter().filter(|d| d.1).map(|d| d.0).collect();
     let (est, mut factors) = sm.batch_problem();
     if est.len() != sc.epochs.len() {
         return Err(FgoError::Numeric(format!("{} nodes for {} epochs", est.len(), sc.epochs.len())));
@@ -309,7 +316,7 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
     let mut batch = initial.clone();
     let t_b = std::time::Instant::now();
     let c0 = thread_cpu_s();
-    let (batch_report, batch_inflated, imu_scale) = if cfg.gating.enabled && cfg.gating.adaptive {
+    let (batch_report, batch_inflated, estimated_imu_scale) = if cfg.gating.enabled && cfg.gating.adaptive {
         super::gating::robust_batch(&mut batch, &mut factors, &cfg.gating, &batch_lm_options())?
     } else {
         (solver::solve_lm(&mut batch, &factors, &batch_lm_options())?, sm.gate_log.count(Sensor::Usbl, true), sm.imu_scale)
@@ -319,6 +326,8 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         _ => f64::NAN,
     };
     let batch_wall_s = t_b.elapsed().as_secs_f64();
+    // the scale the batch problem's IMU factors carry
+    let imu_scale = factors.iter().find_map(|f| if let Factor::Imu(x) = f { Some(x.noise_scale) } else { None }).unwrap_or(1.0);
     Ok(GraphRun {
         realtime,
         initial,
@@ -329,11 +338,13 @@ pub fn run_graph(data: &KittiData, sc: &Scenario, cfg: &KittiConfig) -> Result<G
         batch_inflated,
         batch_report,
         imu_scale,
+        estimated_imu_scale,
         realtime_imu_scale: sm.imu_scale,
         smoother_cpu_s,
         batch_cpu_s,
         smoother_wall_s,
         batch_wall_s,
+        realtime_taken_out,
     })
 }
 

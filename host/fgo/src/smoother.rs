@@ -8,8 +8,10 @@
 //! 2. marginal covariance `P` of that node from the window's information (sparse Cholesky);
 //! 3. gate the observation ([`super::gating`]), inflate its covariance if abnormal, add it
 //!    (adaptive gate, USBL fixes: the IMU noise scale is first re-estimated from the fixes'
-//!    innovations and the window's IMU factors take it);
-//! 4. a few Levenberg-Marquardt iterations over the window;
+//!    innovations; the test is made at it, and without the neighbours rule the window's IMU
+//!    factors take it);
+//! 4. a few Levenberg-Marquardt iterations over the window; with the neighbours rule (the
+//!    default), a USBL fix then decides on the fix before it ([`Smoother::delayed_decision`]);
 //! 5. nodes older than the lag are marginalised (Schur complement) into a prior on the oldest
 //!    kept node; their factors go to an archive with the final covariances.
 //!
@@ -27,6 +29,7 @@ use super::log::{ImuSample, LogConfig, SensorLog};
 use super::preintegration::Preintegrated;
 use super::solver::{self, LmOptions};
 use super::state::{ImuBias, NavState, NodeState};
+use subnav_base::chi2::chi2_quantile;
 use subnav_base::so3;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -119,6 +122,9 @@ pub struct Smoother {
     pub imu_scale: f64,
     /// The last [`gating::ADAPT_WINDOW`] USBL innovations at arrival.
     usbl_innovations: Vec<gating::Innovation>,
+    /// The neighbours rule's delayed decisions (time of the fix decided on, taken out), one per
+    /// USBL fix that had a fix after it in the window ([`Smoother::delayed_decision`]).
+    pub delayed: Vec<(f64, bool)>,
 }
 
 impl Smoother {
@@ -150,6 +156,7 @@ impl Smoother {
             next_id: 1,
             imu_scale: 1.0,
             usbl_innovations: Vec::new(),
+            delayed: Vec::new(),
         };
         Ok(s)
     }
@@ -179,7 +186,7 @@ impl Smoother {
         let p = self.conf.imu;
         let mut pair =
             [Factor::Imu(ImuFactor::new(i, j, pim)?), Factor::BiasRw(BiasRandomWalkFactor::new(i, j, p.acc_bias_rw, p.gyro_bias_rw, dt)?)];
-        pair.iter_mut().for_each(|f| f.set_imu_noise_scale(self.imu_scale));
+        pair.iter_mut().for_each(|f| f.set_imu_noise_scale(self.window_scale()));
         Ok(pair)
     }
 
@@ -243,7 +250,7 @@ impl Smoother {
             // the IMU noise scale from the fixes' innovations, this one included (accepted or
             // not), then the test at that scale
             let hph = h * DMatrix::from_iterator(15, 15, p.iter().copied()) * h.transpose();
-            let inn = gating::Innovation { r: e.residual.clone(), hph, r_cov: cov.clone(), imu_scale: self.imu_scale };
+            let inn = gating::Innovation { r: e.residual.clone(), hph, r_cov: cov.clone(), imu_scale: self.window_scale() };
             if self.usbl_innovations.len() == gating::ADAPT_WINDOW {
                 self.usbl_innovations.remove(0);
             }
@@ -254,7 +261,13 @@ impl Smoother {
             let gamma = inn.gamma_at(self.imu_scale)?;
             let gammas = self.usbl_innovations.iter().map(|i| i.gamma_at(self.imu_scale)).collect::<Result<Vec<f64>, FgoError>>()?;
             let scale = gating::robust_scale(&gammas, e.residual.len())?;
-            gating::decide(t, sensor, gamma, e.residual.len(), &self.cfg.gating, scale)?
+            let mut d = gating::decide(t, sensor, gamma, e.residual.len(), &self.cfg.gating, scale)?;
+            if self.neighbours_rule() && d.abnormal {
+                // the seed's inflation was computed at the estimated scale; the window's IMU is
+                // at the given noise: the same weight relative to the IMU
+                d.kappa = (d.kappa / (self.imu_scale / self.window_scale())).max(1.0);
+            }
+            d
         } else {
             let scale = if self.cfg.gating.adaptive { self.gate_log.adaptive_scale(sensor, e.residual.len())? } else { 1.0 };
             gating::gate_scaled(t, sensor, &e.residual, h, &p, &cov, &self.cfg.gating, scale)?
@@ -275,10 +288,96 @@ impl Smoother {
         Ok(())
     }
 
-    /// The IMU noise scale of new and window IMU factors.
+    /// The estimated IMU noise scale; the window's IMU factors take it unless the neighbours
+    /// rule keeps them at the given noise ([`Smoother::window_scale`]).
     fn set_imu_scale(&mut self, s: f64) {
         self.imu_scale = s;
-        self.factors.iter_mut().for_each(|f| f.set_imu_noise_scale(s));
+        let w = self.window_scale();
+        self.factors.iter_mut().for_each(|f| f.set_imu_noise_scale(w));
+    }
+
+    /// The adaptive gate's neighbours rule is on ([`GatingConfig::neighbours`]).
+    fn neighbours_rule(&self) -> bool {
+        let g = self.cfg.gating;
+        g.enabled && g.adaptive && g.neighbours
+    }
+
+    /// The IMU noise scale the window's IMU factors carry: the given noise (1) under the
+    /// neighbours rule (the estimated scale is then used in the arrival test only), the
+    /// estimated scale otherwise.
+    fn window_scale(&self) -> f64 {
+        if self.neighbours_rule() { 1.0 } else { self.imu_scale }
+    }
+
+    /// The neighbours rule's delayed decision, made when a fix arrives (after the window has been
+    /// solved with it): the fix before it, `k`, is tested on its deletion innovation
+    /// ([`gating::deletion`]: against what all the window's other observations, the new fix
+    /// included, say), at the IMU noise as given. Fix `k` is taken out
+    /// ([`gating::OUTLIER_KAPPA`]) if [`gating::neighbours_outlier`] says so against the
+    /// deletion test values of the window's other kept fixes before it, computed with `k` out
+    /// (one extra solve), unless the fix before `k` was taken out (an outlier is one fix; a run
+    /// of them is the model erring). Then the window is solved again and the real-time output
+    /// of this update is replaced. Nothing is decided on a fix without a kept fix before it in
+    /// the window. The decision comes one fix late: a jumped fix pulls until the next fix
+    /// arrives (on KITTI the decision at arrival cannot tell the jumps from the clean fixes,
+    /// docs/PERFORMANCE.md).
+    fn delayed_decision(&mut self) -> Result<(), FgoError> {
+        if !self.neighbours_rule() {
+            return Ok(());
+        }
+        // the window's fixes: (factor index, time, kappa), oldest first
+        let mut fixes: Vec<(usize, f64, f64)> = self
+            .factors
+            .iter()
+            .enumerate()
+            .filter_map(|(i, f)| if let Factor::Usbl(u) = f { Some((i, self.times[u.node], u.kappa)) } else { None })
+            .collect();
+        fixes.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let n = fixes.len();
+        if n < 2 {
+            return Ok(());
+        }
+        let (fi, t_k, kappa_k) = fixes[n - 2];
+        if kappa_k >= gating::OUTLIER_KAPPA {
+            return Ok(());
+        }
+        // deletion innovations come in factor order; the fixes' positions in that order
+        let pos = |i: usize| -> usize { fixes.iter().filter(|f| f.0 < i).count() };
+        let thr = chi2_quantile(3, self.cfg.gating.confidence)?;
+        let inn = gating::deletion_innovations(&self.nodes, &self.factors, 1.0)?;
+        let g_k = inn[pos(fi)].gamma_at(1.0)?;
+        let before: Vec<usize> = fixes[..n - 2].iter().filter(|f| f.2 < gating::OUTLIER_KAPPA).map(|f| pos(f.0)).collect();
+        let prev_out = self.delayed.last().is_some_and(|d| d.1);
+        if before.is_empty() || !(g_k > thr) || prev_out {
+            self.delayed.push((t_k, false));
+            return Ok(());
+        }
+        let saved = self.nodes.clone();
+        Self::set_kappa(&mut self.factors[fi], gating::OUTLIER_KAPPA);
+        let opts = LmOptions { max_iterations: self.cfg.iterations, ..Default::default() };
+        solver::solve_lm(&mut self.nodes, &self.factors, &opts)?;
+        let inn_out = gating::deletion_innovations(&self.nodes, &self.factors, 1.0)?;
+        let g_nb = before.iter().map(|j| inn_out[*j].gamma_at(1.0)).collect::<Result<Vec<f64>, FgoError>>()?;
+        let out = gating::neighbours_outlier(g_k, &g_nb, thr);
+        if out {
+            let last = self.nodes.len() - 1;
+            if let Some(r) = self.realtime.last_mut() {
+                r.state = self.nodes[last];
+            }
+        } else {
+            Self::set_kappa(&mut self.factors[fi], kappa_k);
+            self.nodes = saved;
+        }
+        self.delayed.push((t_k, out));
+        Ok(())
+    }
+
+    /// A USBL factor's covariance at `kappa` times its nominal one.
+    fn set_kappa(f: &mut Factor, kappa: f64) {
+        if let Factor::Usbl(u) = f {
+            u.noise = u.noise.scaled(kappa / u.kappa);
+            u.kappa = kappa;
+        }
     }
 
     fn optimize_and_marginalize(&mut self) -> Result<(), FgoError> {
@@ -423,6 +522,7 @@ impl Smoother {
         });
         self.gated_add(t_valid, Sensor::Usbl, f, k)?;
         self.optimize_and_marginalize()?;
+        self.delayed_decision()?;
         self.latency_s.push(start.elapsed().as_secs_f64());
         if let (Some(a), Some(b)) = (cpu0, thread_cpu_s()) {
             self.cpu_s.push(b - a);
@@ -520,8 +620,9 @@ pub struct RunResult {
     pub cpu_s: Vec<f64>,
     pub batch_report: Option<solver::LmReport>,
     pub batch_factors: Vec<Factor>,
-    /// The IMU noise variance scale at the end of the real-time run, and the batch's (adaptive
-    /// gate; 1 otherwise).
+    /// The IMU noise variance scale estimated at the end of the real-time run, and the batch's
+    /// (adaptive gate; 1 otherwise). With the neighbours rule the IMU factors keep the given
+    /// noise and these are the scales the tests used.
     pub realtime_imu_scale: f64,
     pub batch_imu_scale: f64,
 }
@@ -650,6 +751,45 @@ mod tests {
         assert!(pulled > 10.0 && after < 0.2 * pulled, "{before} {pulled} {after}");
         assert!(!sm.exclude_fix(t).unwrap(), "already out");
         assert!(!sm.exclude_fix(t0 - 100.0).unwrap(), "no fix there");
+    }
+
+    /// The neighbours rule in real time, IMU and USBL fixes only (no DVL, as on KITTI), a 20-s
+    /// window: one fix 25 m off is taken out when the next fix arrives, and no clean fix is
+    /// taken out; without the rule (the fourth pass's adaptive gate) nothing is decided late.
+    #[test]
+    fn neighbours_rule_takes_a_jumped_fix_out_one_fix_late() {
+        let sim = simulate(&SimConfig {
+            duration_s: 120.0,
+            seed: 11,
+            abnormal_fraction: 0.0,
+            usbl_packet_loss: 0.0,
+            dvl_lock_losses: 0,
+            ..Default::default()
+        });
+        let t0 = sim.log.config.prior.t_s;
+        let mut fixes: Vec<_> = sim.log.usbl.iter().filter(|u| u.t_valid_s > t0).copied().collect();
+        fixes.sort_by(|a, b| a.t_arrival_s.total_cmp(&b.t_arrival_s));
+        let jumped = 12;
+        fixes[jumped].pos_enu_m[0] += 25.0;
+        let t_jump = fixes[jumped].t_valid_s;
+        for neighbours in [true, false] {
+            let cfg = SmootherConfig { lag_s: 20.0, gating: GatingConfig { neighbours, ..Default::default() }, ..Default::default() };
+            let mut sm = Smoother::new(sim.log.config, cfg).unwrap();
+            for s in &sim.log.imu {
+                sm.push_imu(*s).unwrap();
+            }
+            for u in &fixes {
+                sm.add_usbl(u.t_valid_s, Vector3::from(u.pos_enu_m), u.sigma_h_m, u.sigma_v_m).unwrap();
+            }
+            let out: Vec<f64> = sm.delayed.iter().filter(|d| d.1).map(|d| d.0).collect();
+            eprintln!("neighbours {neighbours}: {} delayed decisions, out at {out:?} (jump at {t_jump})", sm.delayed.len());
+            if neighbours {
+                assert!(sm.delayed.len() >= fixes.len() - 3, "{} decisions for {} fixes", sm.delayed.len(), fixes.len());
+                assert_eq!(out, vec![t_jump]);
+            } else {
+                assert!(sm.delayed.is_empty());
+            }
+        }
     }
 
     #[test]
