@@ -28,7 +28,7 @@ impl Default for EnvelopeConfig {
             turbidities: vec![1.0, 3.0],
             skies: SkyKind::ALL.to_vec(),
             draws_per_cell: 100,
-            units: 8,
+            units: subnav_core::head::POLARIZATION_UNITS,
             seed: 1,
         }
     }

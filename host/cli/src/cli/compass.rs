@@ -50,8 +50,8 @@ pub struct Sky {
     /// Sensor depth (m, 0..=1000).
     #[arg(long, default_value_t = 10.0, allow_hyphen_values = true, value_parser = super::args::f64_in(0.0..=1000.0))]
     pub depth_m: f64,
-    /// Polarization units in the simulated head (default 8; with --reference-field the head's
-    /// own count, `subnav_core::head::POLARIZATION_UNITS`).
+    /// Polarization units in the simulated head (default: the head's, 8,
+    /// `subnav_core::head::POLARIZATION_UNITS`).
     #[arg(long)]
     pub units: Option<usize>,
     /// Gravity-vector tilt error, 1-sigma per axis (deg, 0..=10).
@@ -327,9 +327,8 @@ fn envelope(args: &EnvelopeArgs, format: Format) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Units of the simulated head when --units is not given (the head itself has
-/// `subnav_core::head::POLARIZATION_UNITS`).
-const DEFAULT_UNITS: usize = 8;
+/// Units of the simulated head when --units is not given: the head's.
+const DEFAULT_UNITS: usize = subnav_core::head::POLARIZATION_UNITS;
 
 /// `compass simulate --reference-field`: the head's units and the real solver in a field from
 /// outside (`subnav_compass::reference`).
@@ -353,7 +352,7 @@ fn reference(args: &SimulateArgs, format: Format) -> Result<ExitCode> {
         sun_zenith_deg: sza,
         depth_m: args.sky.depth_m,
         draws: args.draws,
-        units: args.sky.units.unwrap_or(subnav_core::head::POLARIZATION_UNITS),
+        units: args.sky.units.unwrap_or(DEFAULT_UNITS),
         max_tilt_deg: args.max_tilt_deg,
         tilt_sigma_rad: args.sky.tilt_sigma_deg.to_radians(),
         seed: args.sky.seed,

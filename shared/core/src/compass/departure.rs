@@ -3,9 +3,9 @@
 //! Why: multiple scattering, the sky's own polarization and the particles' polarization turn
 //! the real e-vector away from the single-scattering one (`d x s`, plus the Fresnel shift of
 //! the refracted beam) by degrees with a low sun; the departure is mirror-symmetric about the
-//! solar plane, so an even ring of units cancels part of it, but 4 units leave a heading error
-//! of 1-2 deg with the sun 60 deg from the zenith (docs/PERFORMANCE.md, "The compass in an
-//! independent light field"). Knowing the sun's zenith (ephemeris) and each unit's view, the
+//! solar plane, so an even ring of units cancels part of it: without the table 4 units leave
+//! a heading error of 1-2 deg with the sun 60 deg from the zenith, the head's 8 units 0.5-0.7
+//! deg (docs/PERFORMANCE.md, "The compass in an independent light field"). Knowing the sun's zenith (ephemeris) and each unit's view, the
 //! solver subtracts the expected departure before fitting the azimuth
 //! ([`super::sun_vector::solve_azimuth`]).
 //!
