@@ -1,5 +1,6 @@
 //! Dive simulator for sensors-in-the-loop runs: the truth trajectory ([`trajectory`]) and the
-//! simulated sensor head ([`head`]) that answers the firmware's bus transactions under QEMU.
+//! simulated sensor head ([`head`]) that answers the firmware's bus transactions under QEMU,
+//! driven by a dive [`scenario`] (the serde file format `subnav sim` writes and `subnav run` reads).
 
 pub mod calibrate;
 pub mod chips;
@@ -10,8 +11,10 @@ pub mod kitti;
 pub mod manufacturing;
 pub mod map_loop;
 pub mod replay;
+pub mod scenario;
 pub mod sea_sky;
 pub mod sil;
 
-pub use head::{CameraPlan, DvlPlan, FaultPlan, FixPlan, Scenario, ScheduledFix, SimHead};
+pub use head::SimHead;
+pub use scenario::{CameraPlan, DvlPlan, FaultPlan, FixPlan, Scenario, ScheduledFix};
 pub use sea_sky::SeaPlan;

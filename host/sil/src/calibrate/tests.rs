@@ -3,6 +3,8 @@ use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::Distribution;
+use subnav_core::head;
+use subnav_wire::PolarizationCalibration;
 
 /// A recording of `proc` from an IMU with `raw = N R x + b` (exact, plus white noise `sigma`).
 fn synthetic_imu(proc: &Procedure, b: &crate::manufacturing::BuildErrors, sigma: f64) -> Recording {
