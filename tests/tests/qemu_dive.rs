@@ -18,7 +18,8 @@
 
 use std::time::Duration;
 
-use subnav_sil::dive::{DiveOptions, DiveResult, run_dive};
+use subnav_sil::dive::DiveResult;
+use subnav_sil::run::HeadRun;
 use subnav_sil::{DvlPlan, FaultPlan, Scenario};
 
 fn elf() -> std::path::PathBuf {
@@ -26,8 +27,7 @@ fn elf() -> std::path::PathBuf {
 }
 
 fn dive(sc: &Scenario) -> DiveResult {
-    let opts = DiveOptions { timeout: Some(Duration::from_secs(900)), ..DiveOptions::default() };
-    let r = run_dive(&elf(), sc, &opts).expect("dive");
+    let r = HeadRun::qemu(sc, &elf()).timeout(Duration::from_secs(900)).run().and_then(|o| o.score(sc)).expect("dive");
     eprintln!("{}", serde_json::to_string_pretty(&r).unwrap());
     r
 }
@@ -42,12 +42,12 @@ fn five_minute_dive_with_sensors_in_the_loop_meets_the_stated_bounds() {
     assert_eq!(r.nav_messages, 3001, "10 Hz for 300 s");
     assert!(r.compass_fixes > 2500, "{r:?}");
     assert!(r.raw_depth_rmse_m < 0.02, "pressure chain (driver + chip model): {r:?}");
-    assert!(r.heading_converged_s.is_some_and(|t| t <= 30.0), "heading converged at {:?}", r.heading_converged_s);
-    assert!(r.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.heading_rmse_deg);
-    assert!(r.heading_within_3_sigma >= 0.95, "heading consistency {}", r.heading_within_3_sigma);
-    assert!(r.horizontal_rms_err_m <= 5.0, "horizontal RMS {} m", r.horizontal_rms_err_m);
-    assert!(r.within_3_sigma >= 0.95, "position consistency {}", r.within_3_sigma);
-    assert!(r.depth_rmse_m <= 0.05, "depth RMSE {} m", r.depth_rmse_m);
+    assert!(r.score.heading_converged_s.is_some_and(|t| t <= 30.0), "heading converged at {:?}", r.score.heading_converged_s);
+    assert!(r.score.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.score.heading_rmse_deg);
+    assert!(r.score.heading_within_3_sigma >= 0.95, "heading consistency {}", r.score.heading_within_3_sigma);
+    assert!(r.score.horizontal_rms_err_m <= 5.0, "horizontal RMS {} m", r.score.horizontal_rms_err_m);
+    assert!(r.score.within_3_sigma >= 0.95, "position consistency {}", r.score.within_3_sigma);
+    assert!(r.score.depth_rmse_m <= 0.05, "depth RMSE {} m", r.score.depth_rmse_m);
 }
 
 /// Bus NACKs on the IMU (1 s) and 5 % of the depth reads, an occluded polarization unit (10 s),
@@ -85,10 +85,10 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
     assert!(has("Dvl", "Invalid") && has("Dvl", "BadCrc") && has("Dvl", "Malformed"), "{:?}", r.faults);
     // The compass went on with the other three units.
     assert!(r.compass_fixes > 2500, "{r:?}");
-    assert!(r.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.heading_rmse_deg);
-    assert!(r.heading_within_3_sigma >= 0.95, "heading consistency {}", r.heading_within_3_sigma);
-    assert!(r.horizontal_rms_err_m <= 5.0, "horizontal RMS {} m", r.horizontal_rms_err_m);
-    assert!(r.within_3_sigma >= 0.95, "position consistency {}", r.within_3_sigma);
+    assert!(r.score.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.score.heading_rmse_deg);
+    assert!(r.score.heading_within_3_sigma >= 0.95, "heading consistency {}", r.score.heading_within_3_sigma);
+    assert!(r.score.horizontal_rms_err_m <= 5.0, "horizontal RMS {} m", r.score.horizontal_rms_err_m);
+    assert!(r.score.within_3_sigma >= 0.95, "position consistency {}", r.score.within_3_sigma);
 }
 
 /// Stack painting: the board reports its stack peak at the end of a run. 12 s with the sensors

@@ -8,16 +8,18 @@
 use std::time::Duration;
 
 use subnav_sil::Scenario;
-use subnav_sil::dive::{DiveOptions, run_dive};
-use subnav_sil::sil::run_dive_native;
+use subnav_sil::run::HeadRun;
 
 #[test]
 fn qemu_camera_and_map_follow_the_firmwares_time() {
     let mut sc = Scenario::map_survey(1);
     sc.duration_s = 240.0;
-    let opts = DiveOptions { timeout: Some(Duration::from_secs(600)), ..DiveOptions::default() };
-    let q = run_dive(&subnav_tests::qemu_elf(), &sc, &opts).expect("QEMU dive");
-    let n = run_dive_native(&sc);
+    let q = HeadRun::qemu(&sc, &subnav_tests::qemu_elf())
+        .timeout(Duration::from_secs(600))
+        .run()
+        .and_then(|o| o.score(&sc))
+        .expect("QEMU dive");
+    let n = HeadRun::native(&sc).run().and_then(|o| o.score(&sc)).expect("native dive");
     let (qm, nm) = (q.map.as_ref().expect("camera"), n.map.as_ref().expect("camera"));
     eprintln!("QEMU {:?}\nnative {:?}", qm.mapper, nm.mapper);
     assert_eq!(q.exit_code, Some(0));
@@ -31,5 +33,5 @@ fn qemu_camera_and_map_follow_the_firmwares_time() {
     // ~180 m of travel at a node per 6 m; the two CPUs' solutions differ in the last bits,
     // which can move a node by a frame, not change the map.
     assert!(qm.mapper.nodes >= 20 && qm.mapper.nodes.abs_diff(nm.mapper.nodes) <= 2, "{} vs {}", qm.mapper.nodes, nm.mapper.nodes);
-    assert!(q.horizontal_max_err_m <= 3.0 && q.within_3_sigma >= 0.95, "{q:?}");
+    assert!(q.score.horizontal_max_err_m <= 3.0 && q.score.within_3_sigma >= 0.95, "{q:?}");
 }

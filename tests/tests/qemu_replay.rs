@@ -12,8 +12,8 @@
 use std::time::Duration;
 
 use subnav_sil::Scenario;
-use subnav_sil::dive::{DiveOptions, run_dive};
 use subnav_sil::replay::replay_file;
+use subnav_sil::run::HeadRun;
 
 #[test]
 fn a_recorded_qemu_dive_is_reproduced_by_the_replay() {
@@ -21,8 +21,7 @@ fn a_recorded_qemu_dive_is_reproduced_by_the_replay() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("dive.snrec");
     let sc = Scenario { duration_s: 120.0, ..Scenario::default() };
-    let opts = DiveOptions { record: Some(&rec), timeout: Some(Duration::from_secs(900)), ..DiveOptions::default() };
-    let dive = run_dive(&elf, &sc, &opts).expect("dive");
+    let dive = HeadRun::qemu(&sc, &elf).record(&rec).timeout(Duration::from_secs(900)).run().and_then(|o| o.score(&sc)).expect("dive");
     assert_eq!(dive.exit_code, Some(0));
     // 1e-4: since the head's position model error went to 0.03 m/sqrt(s) the host's replay and
     // the M4F differ by up to 2e-5 relative in a sigma from the end of the alignment on (3e-6 in

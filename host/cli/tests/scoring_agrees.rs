@@ -71,10 +71,10 @@ fn cli_text_json_and_report_give_the_same_figures() {
         assert!(t == js && js == r, "{what}: text {t}, JSON {js}, report {r}\n{text}\n{md}");
     }
     // Something was scored, the heading converged, and the figures are numbers.
-    assert!(j["aided_messages"].as_u64().unwrap() > 1000, "{j}");
+    assert!(j["scored"].as_u64().unwrap() > 1000, "{j}");
     assert!(figures.iter().all(|f| f.1.parse::<f64>().is_ok_and(f64::is_finite)), "{figures:?}");
     // The report says what it scores.
-    let n = j["aided_messages"].as_u64().unwrap();
+    let n = j["scored"].as_u64().unwrap();
     assert!(md.contains(&format!("({n} aided solutions scored)")), "{md}");
     assert!(md.contains("the alignment before them left out") && md.contains("converged"), "{md}");
 }

@@ -1,5 +1,5 @@
 //! The one scoring of the head's navigation solutions against a simulated dive's truth. `subnav
-//! run` (its text summary and `--format json`, through `subnav_sil::dive::evaluate`), the
+//! run` (its text summary and `--format json`, through `subnav_sil::run::RunOutput::score`), the
 //! report (`subnav_report`, from a recording and its truth) and the live truth-error topic
 //! (`/subnav/truth/error`, [`crate::export::topics`]) all call it, so they agree by construction.
 //!

@@ -9,7 +9,7 @@ use anyhow::Result;
 use serde::Serialize;
 use subnav_base::wrap_deg;
 use subnav_link::record::session::TruthRow;
-use subnav_link::score::{self, Scorer, Truth};
+use subnav_link::score::{self, Score, Scorer, Truth};
 use subnav_wire::{NavMode, Uplink};
 
 use super::head::{Scenario, SimHead};
@@ -22,30 +22,15 @@ use subnav_link::record::tap::QemuRecorder;
 pub struct DiveResult {
     pub exit_code: Option<i32>,
     pub nav_messages: usize,
-    /// Nav messages in `Aided` mode (the statistics below are over these).
-    pub aided_messages: usize,
-    pub first_aided_s: Option<f64>,
-    /// Heading statistics over the aided samples whose reported yaw 1-sigma is at most
-    /// [`HEADING_CONVERGED_SIGMA_DEG`] (before that the filter itself says it has no heading:
-    /// after an alignment without a compass fix its yaw sigma is 86 deg).
-    pub heading_converged_s: Option<f64>,
-    pub heading_rmse_deg: f64,
-    pub heading_max_abs_err_deg: f64,
-    /// Fraction of those samples whose heading error is within 3 reported sigma.
-    pub heading_within_3_sigma: f64,
-    /// Heading RMSE over every aided sample (including the unconverged start).
-    pub heading_rmse_all_aided_deg: f64,
-    pub horizontal_rms_err_m: f64,
-    pub horizontal_final_err_m: f64,
-    pub horizontal_max_err_m: f64,
+    /// The navigation figures (the one scoring, `subnav_link::score`: the aided epochs, the
+    /// heading over those whose yaw 1-sigma is at most [`HEADING_CONVERGED_SIGMA_DEG`]: after an
+    /// alignment without a compass fix the filter itself says it has no heading, 86 deg).
+    #[serde(flatten)]
+    pub score: Score,
     /// Horizontal distance the truth travelled from boot to the last aided sample, m.
     pub distance_m: f64,
     /// `horizontal_final_err_m` as a percentage of `distance_m`.
     pub final_err_pct_of_distance: f64,
-    pub depth_rmse_m: f64,
-    /// Fraction of aided samples whose horizontal error is within 3 sigma of the filter's own
-    /// reported position uncertainty (per axis, north and east).
-    pub within_3_sigma: f64,
     /// Non-finite values seen in any navigation message.
     pub nonfinite_values: usize,
     pub compass_fixes: usize,
@@ -262,44 +247,47 @@ impl LiveStatus {
 /// The fault class of a host process killed and started again mid-dive.
 pub const HOST_RESTARTED: &str = "host killed and restarted";
 
-/// How to run a dive.
-#[derive(Default)]
-pub struct DiveOptions<'a> {
-    /// Write a lossless recording (uplink, defmt and downlink) of the run here.
+/// How [`run_qemu`] runs (the QEMU side of [`crate::run::HeadRun`]).
+pub(crate) struct QemuRun<'a> {
     pub record: Option<&'a Path>,
-    /// Wall-clock limit (QEMU); default 15 minutes.
-    pub timeout: Option<Duration>,
-    /// Called with every navigation message's status (progress display).
+    pub timeout: Duration,
     pub progress: Option<&'a dyn Fn(&LiveStatus)>,
-    /// Called with every uplink message as it is decoded, and the map in the loop (a live view:
-    /// `subnav run --foxglove`). It only watches.
-    pub observer: Option<&'a dyn Fn(&Uplink, Option<&crate::map_loop::MapLoop>)>,
+    pub observer: Option<crate::run::Observer<'a>>,
+    pub keep_all: bool,
 }
 
-/// Run `sc` with the QEMU firmware `elf`.
-pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveResult> {
+/// Run `sc` with the QEMU firmware `elf`, on `head` or the scenario's own head (with its map in
+/// the loop and the recording's downlink tap).
+pub(crate) fn run_qemu(elf: &Path, sc: &Scenario, head: Option<SimHead>, opts: &QemuRun) -> Result<crate::run::RunOutput> {
     let mut cfg = QemuConfig::new(elf);
-    cfg.run_ms = Some((sc.duration_s * 1000.0) as u64);
-    cfg.timeout = opts.timeout.unwrap_or(Duration::from_secs(900));
+    cfg.run_ms = Some((sc.duration_s * 1000.0).round() as u64);
+    cfg.timeout = opts.timeout;
     cfg.board_args = sc.board_args();
     let outage_head_us = sc.faults.host_outage_s.map(|(a, b)| ((a * 1e6) as u64, (b * 1e6) as u64));
     let recorder = opts.record.map(|p| QemuRecorder::start_with_host_outage(&mut cfg, p, outage_head_us)).transpose()?;
     let mut msgs = Vec::new();
-    // Fixes reach the firmware through the bridge's modem (UART 1) at their arrival time; the
-    // recording gets each delivered frame in its downlink stream.
-    let tap = cfg.raw_tap.clone().map(|tx| {
-        let tx = std::sync::Mutex::new(tx);
-        Box::new(move |_t: u64, f: &[u8]| {
-            if let Ok(tx) = tx.lock() {
-                let _ = tx.send(RawBytes::Downlink(f.to_vec()));
-            }
-        }) as crate::chips::modem::DeliveryTap
-    });
-    let map = sc.map_loop();
-    let head = SimHead::build(sc, tap, map.clone());
+    let (head, map) = match head {
+        Some(h) => (h, None),
+        None => {
+            // Fixes reach the firmware through the bridge's modem (UART 1) at their arrival time;
+            // the recording gets each delivered frame in its downlink stream.
+            let tap = cfg.raw_tap.clone().map(|tx| {
+                let tx = std::sync::Mutex::new(tx);
+                Box::new(move |_t: u64, f: &[u8]| {
+                    if let Ok(tx) = tx.lock() {
+                        let _ = tx.send(RawBytes::Downlink(f.to_vec()));
+                    }
+                }) as crate::chips::modem::DeliveryTap
+            });
+            let map = sc.map_loop();
+            (SimHead::build(sc, tap, map.clone()), map)
+        }
+    };
     let mut host = HostView::new(sc);
+    let mut last_t_us = 0u64;
     let result = run_with_bus(&cfg, Box::new(head), |e, _down| {
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
+            last_t_us = m.t_us().unwrap_or(last_t_us);
             if !host.receives(&m) {
                 return;
             }
@@ -307,9 +295,9 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
                 map.on_uplink(&m);
             }
             if let Some(obs) = opts.observer {
-                obs(&m, map.as_ref());
+                obs(last_t_us, &m, map.as_ref());
             }
-            if !scored(&m) {
+            if !opts.keep_all && !scored(&m) {
                 return;
             }
             if let (Uplink::Nav(n), Some(p)) = (&m, opts.progress) {
@@ -330,8 +318,16 @@ pub fn run_dive(elf: &Path, sc: &Scenario, opts: &DiveOptions) -> Result<DiveRes
     if outcome.timed_out {
         anyhow::bail!("the dive did not finish within {} s of wall time; QEMU was stopped", cfg.timeout.as_secs());
     }
-    let r = evaluate(sc, &msgs, outcome.exit_code, outcome.link.frames_bad, outcome.bus_transactions);
-    r.with_map(map.map(|m| m.report()), sc).with_recordings(&recordings)
+    Ok(crate::run::RunOutput {
+        messages: msgs,
+        frames: Vec::new(),
+        downlink: Vec::new(),
+        exit_code: outcome.exit_code,
+        corrupt_frames: outcome.link.frames_bad,
+        bus_transactions: outcome.bus_transactions,
+        map: map.map(|m| m.report()),
+        recordings,
+    })
 }
 
 /// The truth of a dive every `step_s` (yaw wrapped to (-pi, pi]): what `subnav run` writes
@@ -349,25 +345,14 @@ pub fn truth_rows(sc: &Scenario, step_s: f64) -> Vec<TruthRow> {
 }
 
 /// Error statistics of a dive's telemetry `msgs` against the scenario's truth.
-pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_frames: u64, bus_transactions: u64) -> DiveResult {
+pub(crate) fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_frames: u64, bus_transactions: u64) -> DiveResult {
     let traj = sc.trajectory();
     let mut r = DiveResult {
         exit_code,
         nav_messages: 0,
-        aided_messages: 0,
-        first_aided_s: None,
-        heading_converged_s: None,
-        heading_rmse_deg: f64::NAN,
-        heading_max_abs_err_deg: 0.0,
-        heading_within_3_sigma: f64::NAN,
-        heading_rmse_all_aided_deg: f64::NAN,
-        horizontal_rms_err_m: f64::NAN,
-        horizontal_final_err_m: f64::NAN,
-        horizontal_max_err_m: 0.0,
+        score: Scorer::new().score(),
         distance_m: 0.0,
         final_err_pct_of_distance: f64::NAN,
-        depth_rmse_m: f64::NAN,
-        within_3_sigma: f64::NAN,
         nonfinite_values: 0,
         compass_fixes: 0,
         compass_no_fix: 0,
@@ -430,21 +415,13 @@ pub fn evaluate(sc: &Scenario, msgs: &[Uplink], exit_code: Option<i32>, corrupt_
     if nr > 0 {
         r.raw_depth_rmse_m = (sr / nr as f64).sqrt();
     }
-    let s = scorer.score();
-    r.aided_messages = s.scored;
-    (r.first_aided_s, r.heading_converged_s) = (s.first_aided_s, s.heading_converged_s);
-    (r.heading_rmse_deg, r.heading_max_abs_err_deg, r.heading_within_3_sigma) =
-        (s.heading_rmse_deg, s.heading_max_abs_err_deg, s.heading_within_3_sigma);
-    r.heading_rmse_all_aided_deg = s.heading_rmse_all_aided_deg;
-    (r.horizontal_rms_err_m, r.horizontal_final_err_m, r.horizontal_max_err_m) =
-        (s.horizontal_rms_err_m, s.horizontal_final_err_m, s.horizontal_max_err_m);
-    (r.depth_rmse_m, r.within_3_sigma) = (s.depth_rmse_m, s.within_3_sigma);
-    let last_aided_s = s.last_aided_s.unwrap_or(0.0);
+    r.score = scorer.score();
+    let last_aided_s = r.score.last_aided_s.unwrap_or(0.0);
     // Distance: the truth's horizontal speed integrated at 0.1 s.
     let steps = (last_aided_s / 0.1).floor() as u64;
     r.distance_m = (0..steps).map(|k| traj.at(k as f64 * 0.1 + 0.05).vel_ned_mps.xy().norm() * 0.1).sum();
     if r.distance_m > 0.0 {
-        r.final_err_pct_of_distance = 100.0 * r.horizontal_final_err_m / r.distance_m;
+        r.final_err_pct_of_distance = 100.0 * r.score.horizontal_final_err_m / r.distance_m;
     }
     r.fault_classes = fault_classes(sc, msgs, r.longest_nav_gap_s);
     if let Some(h) = msgs.iter().rev().find_map(|m| if let Uplink::Health(h) = m { Some(h) } else { None }) {

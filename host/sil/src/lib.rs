@@ -11,6 +11,7 @@ pub mod kitti;
 pub mod manufacturing;
 pub mod map_loop;
 pub mod replay;
+pub mod run;
 pub mod scenario;
 pub mod sea_sky;
 pub mod sil;

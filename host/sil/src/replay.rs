@@ -5,7 +5,7 @@
 //! with the one the firmware sent.
 //!
 //! How the inputs are put back: the boards' own loop (`subnav_firmware::board_loop`, the code
-//! both boards and [`run_native`](crate::sil::run_native) run) with the recording as the board
+//! both boards and the native run (`crate::sil`) run) with the recording as the board
 //! ([`ReplayBoard`]): boot, then per 1 ms tick the downlink (the seq-0 start commands, then the
 //! recorded commands, each framed again and fed as bytes), `sensor_tick`, the store (none),
 //! `poll`:

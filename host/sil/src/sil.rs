@@ -5,7 +5,8 @@
 //! dive follows the QEMU dive closely but not bit for bit.
 //!
 //! Why: a 5-minute dive takes minutes under QEMU; natively it takes seconds, which makes seed
-//! sweeps and filter tuning practical. The QEMU run stays the reference (`run_dive`).
+//! sweeps and filter tuning practical. The QEMU run stays the reference (`crate::dive`). Both are
+//! run through [`crate::run::HeadRun`].
 
 use std::cell::RefCell;
 use std::collections::VecDeque;
@@ -25,10 +26,11 @@ use subnav_firmware::store::{FailedStore, FlashStore, RecordStore};
 use subnav_wire::bridge::{BusRequest, BusResponse, MAX_REQUEST_FRAME, MAX_RESPONSE_FRAME, bus_map};
 use subnav_wire::{self as wire, Board, Decoded, Downlink, FrameDecoder, MAX_UPLINK_FRAME, Uplink};
 
-use super::dive::{DiveResult, LiveStatus, evaluate};
+use super::dive::LiveStatus;
 use super::head::{Scenario, SimHead};
-use super::map_loop::{MapLoop, MapLoopReport};
+use super::map_loop::MapLoop;
 use super::replay::boot_commands;
+use super::run::{Observer, RunOutput};
 use subnav_link::qemu::BusHandler;
 
 /// The bridge's byte link, answered in process by the chip models.
@@ -59,13 +61,9 @@ impl ByteLink for InProcessLink {
     }
 }
 
-/// Called with every uplink message of a native run as it is decoded (firmware time of its
-/// writing, µs) and the map in the loop: a live view of the run (`subnav run --native --foxglove`).
-pub type NativeObserver<'a> = &'a dyn Fn(u64, &Uplink, Option<&MapLoop>);
-
 /// Telemetry decoded as it is written (and kept as frames, stamped with firmware time).
 struct Collect<'a> {
-    observer: Option<NativeObserver<'a>>,
+    observer: Option<Observer<'a>>,
     /// Keep every frame and message (for a recording or a replay); otherwise only the messages
     /// the scoring reads ([`crate::dive::scored`]), so a day-long dive fits in memory.
     keep_all: bool,
@@ -150,72 +148,31 @@ impl<'o, S: SensorSuite> BoardIo for SilBoard<'_, 'o, S> {
     fn reboot(&mut self) {}
 }
 
-/// Telemetry of a native run.
-pub struct NativeRun {
-    pub messages: Vec<Uplink>,
-    /// The uplink frames as the firmware wrote them, with its time (µs) of writing.
-    pub frames: Vec<(u64, Vec<u8>)>,
-    /// Downlink frames sent (position fixes), with the firmware time they were sent at.
-    pub downlink: Vec<(u64, Vec<u8>)>,
-    pub corrupt_frames: u64,
-    pub bus_transactions: u64,
-    /// The map in the loop (scenarios with a camera).
-    pub map: Option<MapLoopReport>,
-}
-
-/// Run the scenario natively for `sc.duration_s` and return the telemetry (every frame and
-/// message: what a recording or a replay needs).
-pub fn run_native(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>) -> NativeRun {
-    run_native_keeping(sc, progress, true)
-}
-
-/// As [`run_native`], keeping only the messages the scoring reads and no frames (bounded by the
-/// navigation rate, not the raw-sample rate: a day-long dive in a few hundred MB).
-pub fn run_native_scored(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>) -> NativeRun {
-    run_native_keeping(sc, progress, false)
-}
-
-fn run_native_keeping(sc: &Scenario, progress: Option<&dyn Fn(&LiveStatus)>, keep_all: bool) -> NativeRun {
-    run_native_observed(sc, progress, keep_all, None)
-}
-
-/// As [`run_native`] (`keep_all`) or [`run_native_scored`], with every message also shown to
-/// `observer` as it is decoded. The observer only watches: the run is the same with or without.
-pub fn run_native_observed(
+/// Run `sc` natively to its end, on `head` (no map in the loop, deliveries not reported) or the
+/// scenario's own head (its map in the loop, fixes and `downlink`'s frames over the modem).
+/// [`crate::run::HeadRun`] is the public way in.
+pub(crate) fn run(
     sc: &Scenario,
-    progress: Option<&dyn Fn(&LiveStatus)>,
+    head: Option<SimHead>,
     keep_all: bool,
-    observer: Option<NativeObserver<'_>>,
-) -> NativeRun {
-    run_native_live(sc, progress, keep_all, observer, None)
-}
-
-/// As [`run_native_observed`], with `downlink` polled (with the head's time) for commands to
-/// deliver over the modem link as the run goes (e.g. an autopilot's GPS turned into position
-/// fixes by `subnav mavlink`): the head then depends on them, unlike with a mere observer.
-pub fn run_native_live(
-    sc: &Scenario,
     progress: Option<&dyn Fn(&LiveStatus)>,
-    keep_all: bool,
-    observer: Option<NativeObserver<'_>>,
+    observer: Option<Observer<'_>>,
     downlink: Option<crate::chips::modem::LiveSource>,
-) -> NativeRun {
-    let map = sc.map_loop();
-    // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
+) -> RunOutput {
     let delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>> = Arc::default();
-    let tap = {
-        let d = delivered.clone();
-        Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
+    let (head, map) = match head {
+        Some(h) => (h, None),
+        None => {
+            let map = sc.map_loop();
+            // Fixes come over the modem (bridge UART 1) at their arrival time, as under QEMU.
+            let tap = {
+                let d = delivered.clone();
+                Box::new(move |t: u64, f: &[u8]| d.lock().unwrap_or_else(|e| e.into_inner()).push((t, f.to_vec())))
+            };
+            (SimHead::build_live(sc, Some(tap), map.clone(), Vec::new(), downlink), map)
+        }
     };
-    let head = SimHead::build_live(sc, Some(tap), map.clone(), Vec::new(), downlink);
     run_native_on(sc, head, map, delivered, progress, keep_all, observer)
-}
-
-/// Run `sc` natively on `head` (built for `sc` without a camera: e.g. with a flash that
-/// outlives the run, or with commands on its modem), keeping every message (`keep_all`) or
-/// only the scored ones. The downlink of the result is empty (the head has no tap).
-pub fn run_native_with_head(sc: &Scenario, head: SimHead, keep_all: bool) -> NativeRun {
-    run_native_on(sc, head, None, Arc::default(), None, keep_all, None)
 }
 
 fn run_native_on(
@@ -225,8 +182,8 @@ fn run_native_on(
     delivered: Arc<Mutex<Vec<(u64, Vec<u8>)>>>,
     progress: Option<&dyn Fn(&LiveStatus)>,
     keep_all: bool,
-    observer: Option<NativeObserver<'_>>,
-) -> NativeRun {
+    observer: Option<Observer<'_>>,
+) -> RunOutput {
     let mut sink = Collect {
         observer,
         keep_all,
@@ -302,10 +259,19 @@ fn run_native_on(
         m.close();
         m.report()
     });
-    NativeRun { messages: sink.msgs, frames: sink.frames, downlink, corrupt_frames: sink.corrupt, bus_transactions: transactions, map }
+    RunOutput {
+        messages: sink.msgs,
+        frames: sink.frames,
+        downlink,
+        exit_code: Some(0),
+        corrupt_frames: sink.corrupt,
+        bus_transactions: transactions,
+        map,
+        recordings: Vec::new(),
+    }
 }
 
-impl NativeRun {
+impl RunOutput {
     /// Write the run as its host recorded it (uplink and downlink frames; the "host time" of
     /// each chunk is the firmware time it was written at, plus the scenario's start). A host
     /// killed and restarted mid-dive (`FaultPlan::host_outage_s`) writes two recordings: `path`
@@ -330,17 +296,4 @@ impl NativeRun {
         }
         w.finish()
     }
-}
-
-/// Run natively and evaluate against the truth (exit code `Some(0)`: the native run has no
-/// process to fail; a panic would unwind through the caller).
-pub fn run_dive_native(sc: &Scenario) -> DiveResult {
-    let run = run_native_scored(sc, None);
-    evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, sc)
-}
-
-/// As [`run_dive_native`] on a given head (a scenario without a camera).
-pub fn run_dive_native_with_head(sc: &Scenario, head: SimHead) -> DiveResult {
-    let run = run_native_with_head(sc, head, false);
-    evaluate(sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
 }

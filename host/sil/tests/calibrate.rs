@@ -31,7 +31,11 @@ fn the_next_boot_uses_the_written_calibration_and_bad_records_are_refused_by_nam
     assert_eq!(cal.records.len(), subnav_core::head::POLARIZATION_UNITS + 1);
     eprintln!("{:?}", calibrate::recovery_errors(&cal.records, 5));
     let sc = Scenario { duration_s: 1.0, build_seed: Some(5), ..Scenario::default() };
-    let run = subnav_sil::sil::run_native_with_head(&sc, subnav_sil::SimHead::new(&sc).with_flash_chip(flash.clone()), true);
+    let run = subnav_sil::run::HeadRun::native(&sc)
+        .on_head(subnav_sil::SimHead::new(&sc).with_flash_chip(flash.clone()))
+        .keep_all()
+        .run()
+        .unwrap();
     let boot = run.messages.iter().find_map(|m| if let Uplink::Boot(b) = m { Some(b.calibration) } else { None }).unwrap();
     assert_eq!(boot.polarization_units_stored, u8::MAX >> (8 - subnav_core::head::POLARIZATION_UNITS), "{boot:?}");
     assert!(boot.imu_stored, "{boot:?}");

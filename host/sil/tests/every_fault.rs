@@ -13,13 +13,10 @@ use subnav_sil::Scenario;
 fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     let sc = Scenario::every_fault(24, 600.0);
     sc.validate().expect("a valid scenario");
-    let run = subnav_sil::sil::run_native_observed(&sc, None, true, None);
     let dir = tempfile::tempdir().unwrap();
-    let recordings = run.write_recording(&dir.path().join("dive.snrec"), &sc).expect("writing the recordings");
-    let r = subnav_sil::dive::evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
-        .with_map(run.map, &sc)
-        .with_recordings(&recordings)
-        .expect("reading the recordings back");
+    let rec = dir.path().join("dive.snrec");
+    let run = subnav_sil::run::HeadRun::native(&sc).record(&rec).run().expect("writing the recordings");
+    let r = run.score(&sc).expect("reading the recordings back");
     for c in &r.fault_classes {
         let s = |x: Option<f64>| x.map_or("-".into(), |x| format!("{x:.1}"));
         eprintln!(
@@ -34,11 +31,11 @@ fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     }
     eprintln!(
         "within 3 sigma {:.3}, heading {:.3}, horizontal RMS {:.2} m max {:.2} m, heading RMSE {:.2} deg, longest nav gap {:.1} s, faults {:?}",
-        r.within_3_sigma,
-        r.heading_within_3_sigma,
-        r.horizontal_rms_err_m,
-        r.horizontal_max_err_m,
-        r.heading_rmse_deg,
+        r.score.within_3_sigma,
+        r.score.heading_within_3_sigma,
+        r.score.horizontal_rms_err_m,
+        r.score.horizontal_max_err_m,
+        r.score.heading_rmse_deg,
         r.longest_nav_gap_s,
         r.faults
     );
@@ -74,7 +71,7 @@ fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     // Two recordings: the first host's, from the Boot to the kill; the restarted host's, from
     // the restart to the end, without a Boot; the time between them reported.
     let (a, b) = sc.faults.host_outage_s.expect("an outage in the scenario");
-    assert_eq!(recordings, [dir.path().join("dive.snrec"), dir.path().join("dive.2.snrec")]);
+    assert_eq!(run.recordings, [dir.path().join("dive.snrec"), dir.path().join("dive.2.snrec")]);
     let [first, second] = &r.recordings[..] else { panic!("{:?}", r.recordings) };
     assert!(!first.joined_running_head && first.first_head_s < 1.0, "{first:?}");
     assert!((first.last_head_s - a).abs() < 0.2, "the first host recorded until {} s, killed at {a} s", first.last_head_s);
@@ -93,6 +90,6 @@ fn ten_minutes_under_every_fault_every_class_reported_and_consistent() {
     // and an unaided yaw keeps its sigma (`an_unaided_yaw_keeps_its_sigma_at_rest_until_the_compass`).)
     assert_eq!(r.position_resets, 0);
     assert_eq!(r.heading_resets, 0);
-    assert!(r.within_3_sigma >= 0.95, "position within 3 sigma {}", r.within_3_sigma);
-    assert!(r.heading_within_3_sigma >= 0.95, "heading within 3 sigma {}", r.heading_within_3_sigma);
+    assert!(r.score.within_3_sigma >= 0.95, "position within 3 sigma {}", r.score.within_3_sigma);
+    assert!(r.score.heading_within_3_sigma >= 0.95, "heading within 3 sigma {}", r.score.heading_within_3_sigma);
 }

@@ -2,7 +2,7 @@
 //! head's time, the mapper fed by the firmware's own solution, fixes back over the downlink.
 
 use subnav_sil::Scenario;
-use subnav_sil::sil::run_native;
+use subnav_sil::run::HeadRun;
 use subnav_wire::Uplink;
 
 #[test]
@@ -10,7 +10,7 @@ fn camera_frames_follow_the_heads_triggers() {
     let mut sc = Scenario::map_survey(1);
     sc.duration_s = 120.0;
     let t0 = std::time::Instant::now();
-    let run = run_native(&sc, None);
+    let run = HeadRun::native(&sc).keep_all().run().unwrap();
     let triggers: Vec<_> = run.messages.iter().filter_map(|m| if let Uplink::Trigger(t) = m { Some(*t) } else { None }).collect();
     let map = run.map.expect("the scenario has a camera");
     eprintln!("{:?} wall; {} triggers; {:?}", t0.elapsed(), triggers.len(), map.mapper);
@@ -29,14 +29,14 @@ fn camera_frames_follow_the_heads_triggers() {
 #[test]
 fn closed_loop_dive_recognises_its_own_track_within_bounds() {
     let sc = Scenario::map_survey(1);
-    let r = subnav_sil::sil::run_dive_native(&sc);
+    let r = HeadRun::native(&sc).run().unwrap().score(&sc).unwrap();
     let m = r.map.as_ref().expect("camera");
     let s = &m.mapper;
     eprintln!(
         "max {:.2} m rms {:.2} m within {:.3}; nodes {} recognitions {} precision {:?} recall {:?} fixes {}/{} refused {}",
-        r.horizontal_max_err_m,
-        r.horizontal_rms_err_m,
-        r.within_3_sigma,
+        r.score.horizontal_max_err_m,
+        r.score.horizontal_rms_err_m,
+        r.score.within_3_sigma,
         s.nodes,
         s.recognitions,
         m.score.precision,
@@ -46,8 +46,8 @@ fn closed_loop_dive_recognises_its_own_track_within_bounds() {
         m.fixes_refused
     );
     assert_eq!(r.nonfinite_values, 0);
-    assert!(r.horizontal_max_err_m <= 3.0, "max horizontal error {} m", r.horizontal_max_err_m);
-    assert!(r.within_3_sigma >= 0.95, "within 3 sigma {}", r.within_3_sigma);
+    assert!(r.score.horizontal_max_err_m <= 3.0, "max horizontal error {} m", r.score.horizontal_max_err_m);
+    assert!(r.score.within_3_sigma >= 0.95, "within 3 sigma {}", r.score.within_3_sigma);
     // 1,700 m at a node per 6 m without a recognition; later blocks recognise earlier nodes.
     assert!(s.nodes >= 120, "{} nodes", s.nodes);
     assert!(s.trained);
@@ -77,7 +77,7 @@ fn camera_faults_are_counted_and_far_images_refused() {
         c.reorder_probability = 0.02;
         c.far_image_probability = 0.05;
     }
-    let r = subnav_sil::sil::run_dive_native(&sc);
+    let r = HeadRun::native(&sc).run().unwrap().score(&sc).unwrap();
     let m = r.map.as_ref().expect("camera");
     let s = &m.mapper;
     eprintln!("{s:?}");
@@ -94,5 +94,10 @@ fn camera_faults_are_counted_and_far_images_refused() {
     // bound is below that spread; were the gate to let the far images through (5 % of the
     // frames, tens of appearance matches), it would fall towards 0.5.
     assert!(m.score.precision.is_none_or(|p| p >= 0.7), "precision {:?}", m.score.precision);
-    assert!(r.horizontal_max_err_m <= 3.0 && r.within_3_sigma >= 0.95, "max {} within {}", r.horizontal_max_err_m, r.within_3_sigma);
+    assert!(
+        r.score.horizontal_max_err_m <= 3.0 && r.score.within_3_sigma >= 0.95,
+        "max {} within {}",
+        r.score.horizontal_max_err_m,
+        r.score.within_3_sigma
+    );
 }

@@ -10,7 +10,7 @@ use std::sync::OnceLock;
 
 use subnav_link::record::{Meta, Stream, Writer};
 use subnav_sil::replay::{ReplayReport, replay_file};
-use subnav_sil::sil::{NativeRun, run_native};
+use subnav_sil::run::{HeadRun, RunOutput as NativeRun};
 use subnav_sil::{FaultPlan, Scenario};
 use subnav_wire::{self as wire, Boot, Decoded, Fault, FaultKind, FaultSource, FrameDecoder, MAX_UPLINK_FRAME, RawSample, Uplink};
 
@@ -33,7 +33,7 @@ fn native() -> &'static (Scenario, NativeRun) {
     static RUN: OnceLock<(Scenario, NativeRun)> = OnceLock::new();
     RUN.get_or_init(|| {
         let sc = scenario();
-        let run = run_native(&sc, None);
+        let run = HeadRun::native(&sc).keep_all().run().unwrap();
         (sc, run)
     })
 }
@@ -62,8 +62,16 @@ fn encode(m: &Uplink) -> Vec<u8> {
 fn write(dir: &Path, name: &str, frames: Vec<(u64, Vec<u8>)>) -> PathBuf {
     let (sc, run) = native();
     let p = dir.join(name);
-    let modified =
-        NativeRun { messages: Vec::new(), frames, downlink: run.downlink.clone(), corrupt_frames: 0, bus_transactions: 0, map: None };
+    let modified = NativeRun {
+        messages: Vec::new(),
+        frames,
+        downlink: run.downlink.clone(),
+        exit_code: Some(0),
+        corrupt_frames: 0,
+        bus_transactions: 0,
+        map: None,
+        recordings: Vec::new(),
+    };
     modified.write_recording(&p, sc).expect("writing the recording");
     p
 }

@@ -5,16 +5,20 @@
 
 use subnav_sil::Scenario;
 use subnav_sil::dive::DiveResult;
-use subnav_sil::sil::run_dive_native;
+use subnav_sil::run::HeadRun;
+
+fn run_dive_native(sc: &Scenario) -> subnav_sil::dive::DiveResult {
+    HeadRun::native(sc).run().unwrap().score(sc).unwrap()
+}
 
 fn check_bounds(r: &DiveResult) {
     assert_eq!(r.nonfinite_values, 0);
     assert_eq!(r.nav_messages, 3001);
-    assert!(r.heading_converged_s.is_some_and(|t| t <= 30.0), "{r:?}");
-    assert!(r.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.heading_rmse_deg);
-    assert!(r.heading_within_3_sigma >= 0.95, "heading consistency {}", r.heading_within_3_sigma);
-    assert!(r.depth_rmse_m <= 0.05, "depth RMSE {} m", r.depth_rmse_m);
-    assert!(r.within_3_sigma >= 0.95, "position consistency {}", r.within_3_sigma);
+    assert!(r.score.heading_converged_s.is_some_and(|t| t <= 30.0), "{r:?}");
+    assert!(r.score.heading_rmse_deg <= 1.0, "heading RMSE {} deg", r.score.heading_rmse_deg);
+    assert!(r.score.heading_within_3_sigma >= 0.95, "heading consistency {}", r.score.heading_within_3_sigma);
+    assert!(r.score.depth_rmse_m <= 0.05, "depth RMSE {} m", r.score.depth_rmse_m);
+    assert!(r.score.within_3_sigma >= 0.95, "position consistency {}", r.score.within_3_sigma);
 }
 
 #[test]
@@ -23,7 +27,7 @@ fn five_minute_dives_over_seeds_meet_the_bounds() {
         let r = run_dive_native(&Scenario { seed, ..Scenario::default() });
         eprintln!("seed {seed}: {}", serde_json::to_string(&r).unwrap());
         check_bounds(&r);
-        assert!(r.horizontal_rms_err_m <= 5.0, "seed {seed}: horizontal RMS {} m", r.horizontal_rms_err_m);
+        assert!(r.score.horizontal_rms_err_m <= 5.0, "seed {seed}: horizontal RMS {} m", r.score.horizontal_rms_err_m);
     }
 }
 
@@ -36,7 +40,7 @@ fn without_position_aiding_the_drift_is_covered_by_the_reported_sigma() {
     let r = run_dive_native(&Scenario { seed: 1, position_fixes: None, dvl: None, ..Scenario::default() });
     eprintln!("{}", serde_json::to_string(&r).unwrap());
     check_bounds(&r);
-    assert!(r.horizontal_final_err_m > 20.0, "free-inertial drift is expected to be large: {r:?}");
+    assert!(r.score.horizontal_final_err_m > 20.0, "free-inertial drift is expected to be large: {r:?}");
 }
 
 /// With the DVL and no fixes the head navigates on its own: dead reckoning on bottom-track
@@ -50,7 +54,7 @@ fn with_the_dvl_alone_the_position_holds_and_stays_consistent() {
         check_bounds(&r);
         // 0.5 % of the ~290 m travelled would be 1.5 m.
         assert!(r.final_err_pct_of_distance <= 1.0, "seed {seed}: final error {} % of distance", r.final_err_pct_of_distance);
-        assert!(r.horizontal_rms_err_m <= 3.0, "seed {seed}: horizontal RMS {} m", r.horizontal_rms_err_m);
+        assert!(r.score.horizontal_rms_err_m <= 3.0, "seed {seed}: horizontal RMS {} m", r.score.horizontal_rms_err_m);
     }
 }
 
@@ -59,14 +63,12 @@ fn with_the_dvl_alone_the_position_holds_and_stays_consistent() {
 #[test]
 fn an_unrecorded_run_keeps_only_the_scored_messages_and_scores_the_same() {
     let sc = subnav_sil::Scenario { duration_s: 60.0, ..subnav_sil::Scenario::default() };
-    let full = subnav_sil::sil::run_native(&sc, None);
-    let lean = subnav_sil::sil::run_native_scored(&sc, None);
+    let full = HeadRun::native(&sc).keep_all().run().unwrap();
+    let lean = HeadRun::native(&sc).run().unwrap();
     assert!(lean.frames.is_empty());
     assert!(lean.messages.iter().all(subnav_sil::dive::scored));
     assert!(lean.messages.len() * 5 < full.messages.len(), "{} of {}", lean.messages.len(), full.messages.len());
-    let score = |r: &subnav_sil::sil::NativeRun| {
-        serde_json::to_string(&subnav_sil::dive::evaluate(&sc, &r.messages, Some(0), r.corrupt_frames, r.bus_transactions)).unwrap()
-    };
+    let score = |r: &subnav_sil::run::RunOutput| serde_json::to_string(&r.score(&sc).unwrap()).unwrap();
     assert_eq!(score(&lean), score(&full));
 }
 
@@ -84,18 +86,18 @@ fn an_imu_noisier_than_the_tuning_does_not_lose_the_head() {
         let r = run_dive_native(&Scenario { imu_noise_scale: scale, ..base.clone() });
         eprintln!(
             "noise x{scale}: RMS {:.2} m (x1: {:.2} m), {:.1} % within 3 sigma",
-            r.horizontal_rms_err_m,
-            r1.horizontal_rms_err_m,
-            100.0 * r.within_3_sigma
+            r.score.horizontal_rms_err_m,
+            r1.score.horizontal_rms_err_m,
+            100.0 * r.score.within_3_sigma
         );
         assert_eq!(r.nonfinite_values, 0);
-        assert!(r.within_3_sigma >= 0.90, "x{scale}: position consistency {}", r.within_3_sigma);
-        assert!(r.heading_within_3_sigma >= 0.90, "x{scale}: heading consistency {}", r.heading_within_3_sigma);
+        assert!(r.score.within_3_sigma >= 0.90, "x{scale}: position consistency {}", r.score.within_3_sigma);
+        assert!(r.score.heading_within_3_sigma >= 0.90, "x{scale}: heading consistency {}", r.score.heading_within_3_sigma);
         assert!(
-            r.horizontal_rms_err_m <= factor * r1.horizontal_rms_err_m.max(0.2),
+            r.score.horizontal_rms_err_m <= factor * r1.score.horizontal_rms_err_m.max(0.2),
             "x{scale}: horizontal RMS {} m against {} m well tuned",
-            r.horizontal_rms_err_m,
-            r1.horizontal_rms_err_m
+            r.score.horizontal_rms_err_m,
+            r1.score.horizontal_rms_err_m
         );
     }
 }

@@ -5,14 +5,14 @@
 //! 3 m behind the vehicle), printed with `--nocapture` and recorded in docs/PERFORMANCE.md.
 
 use subnav_sil::dive::DiveResult;
-use subnav_sil::sil::run_dive_native;
+use subnav_sil::run::HeadRun;
 use subnav_sil::{FixPlan, Scenario};
 
 fn dive(latency_s: f64, as_if_current: bool, dvl: bool) -> DiveResult {
     let base = Scenario::default();
     let fixes = FixPlan { as_if_current, ..FixPlan::usbl(5.0, 2.0, latency_s) };
     let sc = Scenario { seed: 1, position_fixes: Some(fixes), dvl: if dvl { base.dvl } else { None }, ..base };
-    let r = run_dive_native(&sc);
+    let r = HeadRun::native(&sc).run().unwrap().score(&sc).unwrap();
     assert_eq!(r.nonfinite_values, 0);
     r
 }
@@ -20,17 +20,17 @@ fn dive(latency_s: f64, as_if_current: bool, dvl: bool) -> DiveResult {
 fn figures(dvl: bool) -> (Vec<DiveResult>, DiveResult) {
     let at_time: Vec<DiveResult> = [0.0, 1.0, 3.0].iter().map(|&l| dive(l, false, dvl)).collect();
     let current = dive(3.0, true, dvl);
-    let rms: Vec<f64> = at_time.iter().map(|r| r.horizontal_rms_err_m).collect();
+    let rms: Vec<f64> = at_time.iter().map(|r| r.score.horizontal_rms_err_m).collect();
     eprintln!(
         "dvl {dvl}: horizontal RMS at latency 0 / 1 / 3 s: {:.3} / {:.3} / {:.3} m ({:.1} / {:.1} / {:.1} % within 3 sigma); 3 s fused as if current: {:.3} m ({:.1} % within 3 sigma)",
         rms[0],
         rms[1],
         rms[2],
-        100.0 * at_time[0].within_3_sigma,
-        100.0 * at_time[1].within_3_sigma,
-        100.0 * at_time[2].within_3_sigma,
-        current.horizontal_rms_err_m,
-        100.0 * current.within_3_sigma
+        100.0 * at_time[0].score.within_3_sigma,
+        100.0 * at_time[1].score.within_3_sigma,
+        100.0 * at_time[2].score.within_3_sigma,
+        current.score.horizontal_rms_err_m,
+        100.0 * current.score.within_3_sigma
     );
     (at_time, current)
 }
@@ -39,11 +39,11 @@ fn figures(dvl: bool) -> (Vec<DiveResult>, DiveResult) {
 #[test]
 fn fix_latency_does_not_change_the_accuracy_with_the_dvl() {
     let (at_time, _current) = figures(true);
-    let rms: Vec<f64> = at_time.iter().map(|r| r.horizontal_rms_err_m).collect();
+    let rms: Vec<f64> = at_time.iter().map(|r| r.score.horizontal_rms_err_m).collect();
     let (lo, hi) = rms.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &r| (lo.min(r), hi.max(r)));
     assert!(hi <= 1.10 * lo, "latency changes the accuracy: {rms:?}");
     for r in &at_time {
-        assert!(r.within_3_sigma >= 0.99, "late fixes fused at their time stay consistent: {}", r.within_3_sigma);
+        assert!(r.score.within_3_sigma >= 0.99, "late fixes fused at their time stay consistent: {}", r.score.within_3_sigma);
     }
 }
 
@@ -56,9 +56,9 @@ fn fix_latency_does_not_change_the_accuracy_with_the_dvl() {
 fn late_fixes_fused_at_their_time_beat_fusing_them_as_current() {
     let (at_time, current) = figures(false);
     assert!(
-        at_time[2].horizontal_rms_err_m < current.horizontal_rms_err_m,
+        at_time[2].score.horizontal_rms_err_m < current.score.horizontal_rms_err_m,
         "{} vs {}",
-        at_time[2].horizontal_rms_err_m,
-        current.horizontal_rms_err_m
+        at_time[2].score.horizontal_rms_err_m,
+        current.score.horizontal_rms_err_m
     );
 }

@@ -19,8 +19,8 @@ use super::Format;
 use subnav_link::export::TimeBase;
 use subnav_link::record::session::{TruthRow, truth_csv};
 use subnav_sil::Scenario;
-use subnav_sil::dive::{DiveOptions, DiveResult, LiveStatus, evaluate, run_dive, truth_rows};
-use subnav_sil::sil::{run_native_live, run_native_scored};
+use subnav_sil::dive::{DiveResult, LiveStatus, truth_rows};
+use subnav_sil::run::HeadRun;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -133,19 +133,18 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     let mut unaided = 0usize;
     for seed in seeds.range() {
         let sc = Scenario { seed, ..sc.clone() };
-        let run = run_native_scored(&sc, None);
-        let r = evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions).with_map(run.map, &sc);
+        let r = HeadRun::native(&sc).run()?.score(&sc)?;
         ok &= r.nonfinite_values == 0;
-        unaided += usize::from(r.aided_messages == 0);
+        unaided += usize::from(r.score.scored == 0);
         if format == Format::Text {
             println!(
                 "{seed:>4}  {:>11.2}  {:>7.2}  {:>5.2}  {:>12.3}  {:>16.1}  {:>16.3}  {}",
-                r.horizontal_rms_err_m,
-                r.horizontal_final_err_m,
-                r.horizontal_max_err_m,
+                r.score.horizontal_rms_err_m,
+                r.score.horizontal_final_err_m,
+                r.score.horizontal_max_err_m,
                 r.final_err_pct_of_distance,
-                100.0 * r.within_3_sigma,
-                r.heading_rmse_deg,
+                100.0 * r.score.within_3_sigma,
+                r.score.heading_rmse_deg,
                 map_cells(&r)
             );
         }
@@ -154,12 +153,12 @@ fn run_seeds(sc: &Scenario, seeds: &super::args::Seeds, format: Format) -> Resul
     let n = rows.len().max(1) as f64;
     let mean = |f: &dyn Fn(&DiveResult) -> f64| rows.iter().map(|(_, r)| f(r)).sum::<f64>() / n;
     let means = serde_json::json!({
-        "horizontal_rms_err_m": mean(&|r| r.horizontal_rms_err_m),
-        "horizontal_final_err_m": mean(&|r| r.horizontal_final_err_m),
-        "horizontal_max_err_m": mean(&|r| r.horizontal_max_err_m),
+        "horizontal_rms_err_m": mean(&|r| r.score.horizontal_rms_err_m),
+        "horizontal_final_err_m": mean(&|r| r.score.horizontal_final_err_m),
+        "horizontal_max_err_m": mean(&|r| r.score.horizontal_max_err_m),
         "final_err_pct_of_distance": mean(&|r| r.final_err_pct_of_distance),
-        "within_3_sigma": mean(&|r| r.within_3_sigma),
-        "heading_rmse_deg": mean(&|r| r.heading_rmse_deg),
+        "within_3_sigma": mean(&|r| r.score.within_3_sigma),
+        "heading_rmse_deg": mean(&|r| r.score.heading_rmse_deg),
     });
     match format {
         Format::Json => {
@@ -275,17 +274,17 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
             // After the pacing: the bridge sees the message when the head would send it.
             super::mavlink::on_uplink(bridge.as_ref(), m);
         };
-        let observer: Option<subnav_sil::sil::NativeObserver> =
-            if feed.is_some() || speed.is_some() || bridge.is_some() { Some(&observe) } else { None };
-        let downlink = bridge.as_ref().map(super::mavlink::downlink_source);
-        let run = run_native_live(&sc, Some(&progress), record.is_some(), observer, downlink);
-        let recordings = match &record {
-            Some(p) => run.write_recording(p, &sc).with_context(|| format!("writing the recording {}", p.display()))?,
-            None => Vec::new(),
-        };
-        evaluate(&sc, &run.messages, Some(0), run.corrupt_frames, run.bus_transactions)
-            .with_map(run.map, &sc)
-            .with_recordings(&recordings)?
+        let mut run = HeadRun::native(&sc).progress(&progress);
+        if feed.is_some() || speed.is_some() || bridge.is_some() {
+            run = run.observer(&observe);
+        }
+        if let Some(b) = &bridge {
+            run = run.downlink(super::mavlink::downlink_source(b));
+        }
+        if let Some(p) = &record {
+            run = run.record(p);
+        }
+        run.run()?.score(&sc)?
     } else {
         let elf = args.elf.as_ref().context("--elf is required without --native")?;
         if !elf.exists() {
@@ -296,21 +295,20 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         if let Some(b) = &bridge {
             b.set_gps_input(subnav_mavlink::GpsInput::Off);
         }
-        let observe = |m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
+        let observe = |_t_us: u64, m: &subnav_wire::Uplink, map: Option<&subnav_sil::map_loop::MapLoop>| {
             if let Some(f) = &feed {
                 f.on_uplink(subnav_link::record::now_unix_us(), m, map);
             }
             super::mavlink::on_uplink(bridge.as_ref(), m);
         };
-        let observer: Option<&dyn Fn(&subnav_wire::Uplink, Option<&subnav_sil::map_loop::MapLoop>)> =
-            if feed.is_some() || bridge.is_some() { Some(&observe) } else { None };
-        let opts = DiveOptions {
-            record: record.as_deref(),
-            timeout: Some(Duration::from_secs(args.timeout_s)),
-            progress: Some(&progress),
-            observer,
-        };
-        run_dive(elf, &sc, &opts)?
+        let mut run = HeadRun::qemu(&sc, elf).timeout(Duration::from_secs(args.timeout_s)).progress(&progress);
+        if feed.is_some() || bridge.is_some() {
+            run = run.observer(&observe);
+        }
+        if let Some(p) = &record {
+            run = run.record(p);
+        }
+        run.run()?.score(&sc)?
     };
     pb.finish_and_clear();
     drop(feed);
@@ -339,7 +337,7 @@ pub fn run(args: Args, format: Format) -> Result<ExitCode> {
         );
     }
     // Statistics from nothing ("RMS NaN m ... NaN % of -0 m") are not a result.
-    let aided = result.aided_messages > 0;
+    let aided = result.score.scored > 0;
     if !aided {
         eprintln!(
             "error: no aided navigation solution in the {} s dive ({} navigation messages, none aided): no error statistics; run a longer dive",
@@ -378,32 +376,32 @@ fn write_report(dir: &std::path::Path, rec: &std::path::Path, sc: &Scenario, r: 
 }
 
 fn print_summary(r: &DiveResult) {
-    println!("navigation messages   {} ({} aided, first at {:?} s)", r.nav_messages, r.aided_messages, r.first_aided_s);
-    if r.aided_messages == 0 {
+    println!("navigation messages   {} ({} aided, first at {:?} s)", r.nav_messages, r.score.scored, r.score.first_aided_s);
+    if r.score.scored == 0 {
         println!("heading, position     no aided solution: no error statistics");
     } else {
         println!(
             "heading               RMSE {:.3} deg, max {:.3} deg, {:.1} % within 3 sigma (converged from {:?} s; all aided: RMSE {:.2} deg)",
-            r.heading_rmse_deg,
-            r.heading_max_abs_err_deg,
-            100.0 * r.heading_within_3_sigma,
-            r.heading_converged_s,
-            r.heading_rmse_all_aided_deg
+            r.score.heading_rmse_deg,
+            r.score.heading_max_abs_err_deg,
+            100.0 * r.score.heading_within_3_sigma,
+            r.score.heading_converged_s,
+            r.score.heading_rmse_all_aided_deg
         );
         println!(
             "horizontal position   RMS {:.2} m, final {:.2} m ({}), max {:.2} m, {:.1} % within 3 sigma",
-            r.horizontal_rms_err_m,
-            r.horizontal_final_err_m,
+            r.score.horizontal_rms_err_m,
+            r.score.horizontal_final_err_m,
             if r.distance_m > 0.0 {
                 format!("{:.3} % of {:.0} m travelled", r.final_err_pct_of_distance, r.distance_m)
             } else {
                 "no distance travelled".to_string()
             },
-            r.horizontal_max_err_m,
-            100.0 * r.within_3_sigma
+            r.score.horizontal_max_err_m,
+            100.0 * r.score.within_3_sigma
         );
     }
-    println!("depth                 RMSE {:.3} m (raw sensor {:.4} m)", r.depth_rmse_m, r.raw_depth_rmse_m);
+    println!("depth                 RMSE {:.3} m (raw sensor {:.4} m)", r.score.depth_rmse_m, r.raw_depth_rmse_m);
     println!("compass alone         {} fixes, {} without, RMSE {:.2} deg", r.compass_fixes, r.compass_no_fix, r.compass_rmse_deg);
     println!("bus transactions      {}  corrupt frames {}  non-finite values {}", r.bus_transactions, r.corrupt_frames, r.nonfinite_values);
     for (source, kind, count) in &r.faults {

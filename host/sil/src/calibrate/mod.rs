@@ -17,8 +17,7 @@
 //! reading back the records, the comparison dives); the estimators themselves, pure maths on
 //! a recording, are [`fit`] (re-exported here), so they can be read and tested without a head.
 
-use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use nalgebra::Vector3;
@@ -28,6 +27,7 @@ use subnav_wire::{Command, Downlink, ImuSample, PolarizationSample, RawSample, R
 
 use crate::chips::w25q::SharedFlash;
 use crate::head::{Scenario, SimHead};
+use crate::run::{HeadRun, RunOutput};
 
 pub mod fit;
 #[cfg(test)]
@@ -227,42 +227,12 @@ impl Site {
     }
 }
 
-/// Which head a session runs on.
-#[derive(Debug, Clone)]
-pub enum Target {
-    /// The firmware's application core natively (software in the loop).
-    Native,
-    /// The QEMU board firmware.
-    Qemu { elf: PathBuf, timeout: Duration },
-}
+/// Which head a session runs on (the run builder's targets).
+pub use crate::run::Target;
 
-/// Run a session of `sc` on `head` and return its telemetry.
+/// Run a session of `sc` on `head` and return its telemetry (every message).
 pub fn run_session(target: &Target, sc: &Scenario, head: SimHead) -> Result<Vec<Uplink>> {
-    match target {
-        Target::Native => Ok(crate::sil::run_native_with_head(sc, head, true).messages),
-        Target::Qemu { elf, timeout } => {
-            use subnav_link::LinkEvent;
-            use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
-            if !elf.is_file() {
-                bail!("firmware ELF {}: no such file (`cargo xtask build --board qemu` builds it)", elf.display());
-            }
-            let mut cfg = QemuConfig::new(elf);
-            cfg.run_ms = Some((sc.duration_s * 1000.0).round() as u64);
-            cfg.timeout = *timeout;
-            cfg.board_args = sc.board_args();
-            let mut msgs = Vec::new();
-            let (outcome, _) = run_with_bus(&cfg, Box::new(head), |e, _| {
-                if let QemuEvent::Link(LinkEvent::Message(m)) = e {
-                    msgs.push(m);
-                }
-            })
-            .with_context(|| format!("running {} under QEMU", elf.display()))?;
-            if outcome.timed_out {
-                bail!("the QEMU head ({}) did not finish its session within {} s", elf.display(), timeout.as_secs());
-            }
-            Ok(msgs)
-        }
-    }
+    Ok(HeadRun::on(sc, target.clone()).on_head(head).keep_all().run()?.messages)
 }
 
 /// Record the calibration sequence on the head whose store is `flash`.
@@ -398,9 +368,10 @@ pub struct HeadFigures {
 pub const OUTLIER_DEG: f64 = 10.0;
 
 impl HeadFigures {
-    /// The figures of a dive's telemetry (`msgs` must hold its Nav and Compass messages).
-    pub fn of(sc: &Scenario, msgs: &[Uplink]) -> Self {
-        let r = crate::dive::evaluate(sc, msgs, Some(0), 0, 0);
+    /// The figures of a run of `sc`.
+    pub fn of(sc: &Scenario, run: &RunOutput) -> Result<Self> {
+        let r = run.score(sc)?;
+        let msgs = &run.messages;
         let traj = sc.trajectory();
         let mut err: Vec<f64> = msgs
             .iter()
@@ -413,16 +384,16 @@ impl HeadFigures {
         err.sort_by(f64::total_cmp);
         let inliers: Vec<f64> = err.iter().copied().filter(|e| *e <= OUTLIER_DEG).collect();
         let rms = |v: &[f64]| if v.is_empty() { f64::NAN } else { (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt() };
-        HeadFigures {
+        Ok(HeadFigures {
             compass_rmse_deg: r.compass_rmse_deg,
             compass_fixes: r.compass_fixes,
             compass_no_fix: r.compass_no_fix,
             compass_median_abs_deg: err.get(err.len() / 2).copied().unwrap_or(f64::NAN),
             compass_outliers: err.len() - inliers.len(),
             compass_rmse_inliers_deg: rms(&inliers),
-            heading_rmse_deg: r.heading_rmse_deg,
-            horizontal_rms_err_m: r.horizontal_rms_err_m,
-        }
+            heading_rmse_deg: r.score.heading_rmse_deg,
+            horizontal_rms_err_m: r.score.horizontal_rms_err_m,
+        })
     }
 }
 
@@ -451,16 +422,16 @@ pub fn compare(build_seed: u64, dive: &Scenario) -> Result<Comparison> {
     }
     let ideal_sc = Scenario { seed: build_seed, build_seed: None, rig: None, ..dive.clone() };
     let built_sc = Scenario { build_seed: Some(build_seed), ..ideal_sc.clone() };
-    let ideal = crate::sil::run_native_scored(&ideal_sc, None).messages;
-    let uncalibrated = crate::sil::run_native_scored(&built_sc, None).messages;
+    let ideal = HeadRun::native(&ideal_sc).run()?;
+    let uncalibrated = HeadRun::native(&built_sc).run()?;
     let flash = SharedFlash::default();
     let cal = calibrate(&Target::Native, Some(build_seed), session_seed(build_seed), &flash)?;
-    let calibrated = crate::sil::run_native_with_head(&built_sc, SimHead::new(&built_sc).with_flash_chip(flash), false).messages;
+    let calibrated = HeadRun::native(&built_sc).on_head(SimHead::new(&built_sc).with_flash_chip(flash)).run()?;
     Ok(Comparison {
         build_seed,
-        uncalibrated: HeadFigures::of(&built_sc, &uncalibrated),
-        calibrated: HeadFigures::of(&built_sc, &calibrated),
-        ideal: HeadFigures::of(&ideal_sc, &ideal),
+        uncalibrated: HeadFigures::of(&built_sc, &uncalibrated)?,
+        calibrated: HeadFigures::of(&built_sc, &calibrated)?,
+        ideal: HeadFigures::of(&ideal_sc, &ideal)?,
         recovery: recovery_errors(&cal.records, build_seed),
     })
 }

@@ -3,6 +3,8 @@ use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::Distribution;
+use std::path::PathBuf;
+use std::time::Duration;
 use subnav_core::head;
 use subnav_wire::PolarizationCalibration;
 

@@ -1,0 +1,186 @@
+//! The one way to run a simulated head: [`HeadRun`], a builder (target native or QEMU, the head,
+//! what to keep, a recording, a progress display, an observer, a live downlink, a time limit)
+//! whose [`HeadRun::run`] returns one output type, [`RunOutput`], scored by
+//! [`RunOutput::score`] (`crate::dive::evaluate`, i.e. `subnav_link::score`).
+//!
+//! Why one: the CLI, the tests, the calibration sessions, the dives, the map loop and the seed
+//! sweeps used to pick among nine entry points with positional flags, and repeated the scoring
+//! call after each. The two targets differ only in where the firmware runs (`crate::sil` in
+//! process, `crate::dive` under QEMU); what a caller asks for is the same.
+//!
+//! ```no_run
+//! # fn main() -> anyhow::Result<()> {
+//! use subnav_sil::{Scenario, run::HeadRun};
+//! let sc = Scenario::default();
+//! let out = HeadRun::native(&sc).run()?;
+//! let result = out.score(&sc)?;
+//! println!("heading RMSE {:.3} deg", result.score.heading_rmse_deg);
+//! # Ok(()) }
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use subnav_wire::Uplink;
+
+use crate::chips::modem::LiveSource;
+use crate::dive::{DiveResult, LiveStatus, evaluate};
+use crate::head::{Scenario, SimHead};
+use crate::map_loop::{MapLoop, MapLoopReport};
+
+/// Where the firmware runs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Target {
+    /// The firmware's application core compiled for the host (`crate::sil`): seconds per dive.
+    Native,
+    /// The QEMU board firmware `elf` (`crate::dive`): the reference, minutes per dive. The run is
+    /// an error past `timeout` of wall time.
+    Qemu { elf: PathBuf, timeout: Duration },
+}
+
+/// Called with every uplink message the host receives, as it is decoded: the head's time (µs;
+/// under QEMU the message's own time, or the latest before it for messages without one), the
+/// message and the map in the loop. It only watches: the run is the same with or without.
+pub type Observer<'a> = &'a dyn Fn(u64, &Uplink, Option<&MapLoop>);
+
+/// A run of a simulated head, to be configured then [`run`](HeadRun::run).
+pub struct HeadRun<'a> {
+    sc: &'a Scenario,
+    target: Target,
+    head: Option<SimHead>,
+    keep_all: bool,
+    record: Option<&'a Path>,
+    progress: Option<&'a dyn Fn(&LiveStatus)>,
+    observer: Option<Observer<'a>>,
+    downlink: Option<LiveSource>,
+}
+
+/// What a run produced.
+pub struct RunOutput {
+    /// Every message the host received ([`HeadRun::keep_all`]) or only those the scoring reads
+    /// ([`crate::dive::scored`]; bounded by the navigation rate: a day-long dive fits in memory).
+    pub messages: Vec<Uplink>,
+    /// Native runs that keep everything: the uplink frames as the firmware wrote them, with its
+    /// time (µs) of writing (what a recording holds). Empty under QEMU (its recording is written
+    /// as it runs).
+    pub frames: Vec<(u64, Vec<u8>)>,
+    /// Native runs: downlink frames delivered (position fixes, commands), with the firmware time
+    /// they were delivered at (empty on a head given with [`HeadRun::on_head`]).
+    pub downlink: Vec<(u64, Vec<u8>)>,
+    /// The firmware's exit status (native: always `Some(0)`, there is no process to fail).
+    pub exit_code: Option<i32>,
+    pub corrupt_frames: u64,
+    pub bus_transactions: u64,
+    /// The map in the loop (scenarios with a camera, head not given).
+    pub map: Option<MapLoopReport>,
+    /// The recordings written ([`HeadRun::record`]; more than one when the scenario restarts the host).
+    pub recordings: Vec<PathBuf>,
+}
+
+impl<'a> HeadRun<'a> {
+    fn new(sc: &'a Scenario, target: Target) -> Self {
+        Self { sc, target, head: None, keep_all: false, record: None, progress: None, observer: None, downlink: None }
+    }
+
+    /// Run `sc` natively (the application core in process).
+    pub fn native(sc: &'a Scenario) -> Self {
+        Self::new(sc, Target::Native)
+    }
+
+    /// Run `sc` on the QEMU board firmware `elf` (a wall-clock limit of 15 minutes unless
+    /// [`HeadRun::timeout`] says otherwise).
+    pub fn qemu(sc: &'a Scenario, elf: &Path) -> Self {
+        Self::new(sc, Target::Qemu { elf: elf.to_path_buf(), timeout: Duration::from_secs(900) })
+    }
+
+    /// Run `sc` on `target`.
+    pub fn on(sc: &'a Scenario, target: Target) -> Self {
+        Self::new(sc, target)
+    }
+
+    /// Run on `head` (built for the scenario, e.g. with a flash that outlives the run) instead of
+    /// the scenario's own head. Such a head has no map in the loop, and its deliveries are not
+    /// reported in [`RunOutput::downlink`].
+    pub fn on_head(mut self, head: SimHead) -> Self {
+        self.head = Some(head);
+        self
+    }
+
+    /// Keep every message (and, native, every frame), not only the scored ones.
+    pub fn keep_all(mut self) -> Self {
+        self.keep_all = true;
+        self
+    }
+
+    /// Write the run's recording at `path` (the host's view: a restarted host writes a second
+    /// recording beside it). Implies [`HeadRun::keep_all`] natively.
+    pub fn record(mut self, path: &'a Path) -> Self {
+        self.record = Some(path);
+        self
+    }
+
+    /// QEMU: the wall-clock limit; the run is an error past it (nothing natively).
+    pub fn timeout(mut self, t: Duration) -> Self {
+        if let Target::Qemu { timeout, .. } = &mut self.target {
+            *timeout = t;
+        }
+        self
+    }
+
+    /// Called with the latest navigation solution's status (native: every second of head time;
+    /// QEMU: every solution).
+    pub fn progress(mut self, p: &'a dyn Fn(&LiveStatus)) -> Self {
+        self.progress = Some(p);
+        self
+    }
+
+    /// Shown every message as it is received.
+    pub fn observer(mut self, o: Observer<'a>) -> Self {
+        self.observer = Some(o);
+        self
+    }
+
+    /// Native: polled with the head's time for downlink frames to deliver over the modem as the
+    /// run goes (e.g. an autopilot's GPS turned into fixes by `subnav mavlink`): the head then
+    /// depends on them, unlike with an observer. Not available under QEMU (an error).
+    pub fn downlink(mut self, source: LiveSource) -> Self {
+        self.downlink = Some(source);
+        self
+    }
+
+    /// Run to the scenario's end.
+    pub fn run(self) -> Result<RunOutput> {
+        let HeadRun { sc, target, head, keep_all, record, progress, observer, downlink } = self;
+        match target {
+            Target::Native => {
+                let run = crate::sil::run(sc, head, keep_all || record.is_some(), progress, observer, downlink);
+                let recordings = match record {
+                    Some(p) => run.write_recording(p, sc).with_context(|| format!("writing the recording {}", p.display()))?,
+                    None => Vec::new(),
+                };
+                Ok(RunOutput { recordings, ..run })
+            }
+            Target::Qemu { elf, timeout } => {
+                if downlink.is_some() {
+                    bail!("a live downlink is for native runs: under QEMU the head's modem carries the scenario's fixes");
+                }
+                if !elf.is_file() {
+                    bail!("firmware ELF {}: no such file (`cargo xtask build --board qemu` builds it)", elf.display());
+                }
+                let opts = crate::dive::QemuRun { record, timeout, progress, observer, keep_all };
+                crate::dive::run_qemu(&elf, sc, head, &opts).with_context(|| format!("running {} under QEMU", elf.display()))
+            }
+        }
+    }
+}
+
+impl RunOutput {
+    /// The run's figures against the scenario's truth (the one scoring, `subnav_link::score`),
+    /// with the map's report and the recordings' spans.
+    pub fn score(&self, sc: &Scenario) -> Result<DiveResult> {
+        evaluate(sc, &self.messages, self.exit_code, self.corrupt_frames, self.bus_transactions)
+            .with_map(self.map.clone(), sc)
+            .with_recordings(&self.recordings)
+    }
+}
