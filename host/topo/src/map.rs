@@ -26,6 +26,15 @@ pub struct Node {
     pub merged: Vec<usize>,
 }
 
+impl Node {
+    /// A node placed at `pos_ned_m` (N, E) with covariance `cov_m2` (NN, NE, EE) from its
+    /// `samples`: no truth (the online mapper's nodes; a simulation adds it for its evaluation),
+    /// no filter slot, not yet observed or merged.
+    pub fn placed(id: usize, created_t_s: f64, samples: Vec<[f64; N_FEATURES]>, pos_ned_m: [f64; 2], cov_m2: [f64; 3]) -> Self {
+        Node { id, slot: 0, created_t_s, samples, pos_ned_m, cov_m2, truth_ned_m: None, observations: 0, merged: Vec::new() }
+    }
+}
+
 /// An edge: consecutive visits, or a merge.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 pub struct Edge {

@@ -892,17 +892,7 @@ impl LiveMapper {
         map.nodes = self
             .nodes
             .iter()
-            .map(|n| Node {
-                id: n.id,
-                slot: 0,
-                created_t_s: n.created_t_us as f64 * 1e-6,
-                samples: n.samples.clone(),
-                pos_ned_m: n.pos_ned_m,
-                cov_m2: n.cov_ne_m2,
-                truth_ned_m: None,
-                observations: 0,
-                merged: Vec::new(),
-            })
+            .map(|n| Node::placed(n.id, n.created_t_us as f64 * 1e-6, n.samples.clone(), n.pos_ned_m, n.cov_ne_m2))
             .collect();
         let metric = map
             .train(&self.cfg.lmnn, self.cfg.threshold_factor)
