@@ -1,8 +1,8 @@
 //! `cargo xtask`: build automation for subnav.
 //!
 //! - `cargo xtask test`  : install what is missing, build both firmware boards, check sizes and
-//!                         that no heap allocator is linked, set up the peer venv, run every test
-//!                         (the host tool with its default `probe` feature).
+//!   that no heap allocator is linked, set up the peer venv, run every test (the host tool with
+//!   its default `probe` feature).
 //! - `cargo xtask run`   : build the QEMU firmware and run the main job: the closed-loop dive
 //!   (camera and map in the loop) with a live status, the error summary and the report.
 //! - `cargo xtask build` : build the firmware boards (`--board qemu|stm32f4|all`).
@@ -147,6 +147,11 @@ fn have_nextest() -> bool {
         .is_ok_and(|s| s.success())
 }
 
+/// A scoped thread's result, its panic as an error.
+fn joined<T>(r: std::thread::Result<Result<T>>) -> Result<T> {
+    r.unwrap_or_else(|_| Err(anyhow::anyhow!("a setup thread panicked")))
+}
+
 fn test(rest: &[String]) -> Result<()> {
     let started = std::time::Instant::now();
     // Packages first, one apt step at a time (apt holds a lock).
@@ -181,9 +186,8 @@ fn test(rest: &[String]) -> Result<()> {
             c.args(["test", "--workspace", "--no-run"]);
         }
         let build = run(&mut c);
-        let join = |r: std::thread::Result<Result<_>>| r.unwrap_or_else(|_| Err(anyhow::anyhow!("a setup thread panicked")));
-        let firmware = join(firmware.join());
-        let peers = join(peers.join());
+        let firmware = joined(firmware.join());
+        let peers = joined(peers.join());
         build.and(firmware).and_then(|f| peers.map(|(p, n)| (f, p, n)))
     })?;
     let elfs = firmware;
