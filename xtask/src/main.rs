@@ -147,52 +147,27 @@ fn have_nextest() -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// A scoped thread's result, its panic as an error.
-fn joined<T>(r: std::thread::Result<Result<T>>) -> Result<T> {
-    r.unwrap_or_else(|_| Err(anyhow::anyhow!("a setup thread panicked")))
-}
-
+/// The steps run one after the other: the firmware, the peers and the host test build side by
+/// side were measured slower on the 2-core CI machine (docs/PERFORMANCE.md, "CI run time").
 fn test(rest: &[String]) -> Result<()> {
     let started = std::time::Instant::now();
-    // Packages first, one apt step at a time (apt holds a lock).
     setup::ensure_system_packages()?;
     let tc = firmware::Toolchain::detect()?;
-    setup::ensure_node()?;
-    let passthrough: Vec<&String> = rest.iter().skip_while(|a| *a != "--").collect();
-    let nextest = passthrough.is_empty() && have_nextest();
-    // Then three things side by side, as none needs another's output: the firmware boards (their
-    // own target directory; fat LTO with one codegen unit leaves a core idle for long stretches),
-    // the peers (pip and npm: mostly network), and the host test build (its tail of long single
-    // crates and links leaves the other core idle too). On the 2-core CI machine this saves about
-    // the firmware build's time.
-    let (firmware, python, node_modules) = std::thread::scope(|s| {
-        let firmware = s.spawn(|| -> Result<Vec<(firmware::Board, PathBuf)>> {
-            let mut elfs = vec![];
-            let mut reports = vec![];
-            for b in firmware::boards("all")? {
-                let elf = tc.build(b)?;
-                reports.push(size::report(b, &elf)?);
-                elfs.push((b, elf));
-            }
-            size::print(&reports);
-            size::check(&reports)?;
-            Ok(elfs)
-        });
-        let peers = s.spawn(|| -> Result<(PathBuf, PathBuf)> { Ok((setup::peer_venv()?, setup::peer_node()?)) });
-        let mut c = host_cargo();
-        if nextest {
-            c.args(["nextest", "run", "--workspace", "--no-run"]);
-        } else {
-            c.args(["test", "--workspace", "--no-run"]);
-        }
-        let build = run(&mut c);
-        let firmware = joined(firmware.join());
-        let peers = joined(peers.join());
-        build.and(firmware).and_then(|f| peers.map(|(p, n)| (f, p, n)))
-    })?;
-    let elfs = firmware;
+    let mut elfs = vec![];
+    let mut reports = vec![];
+    for b in firmware::boards("all")? {
+        let elf = tc.build(b)?;
+        reports.push(size::report(b, &elf)?);
+        elfs.push((b, elf));
+    }
+    size::print(&reports);
+    size::check(&reports)?;
+    let python = setup::peer_venv()?;
+    let node_modules = setup::peer_node()?;
+
     let qemu_elf = elfs.iter().find(|(b, _)| *b == firmware::Board::Qemu).map(|(_, e)| e.clone()).context("no QEMU ELF")?;
-    if nextest {
+    let passthrough: Vec<&String> = rest.iter().skip_while(|a| *a != "--").collect();
+    if passthrough.is_empty() && have_nextest() {
         // cargo-nextest runs the test binaries side by side (cargo test runs them one after the
         // other, so a binary with one long QEMU dive leaves a core idle); it does not run
         // doctests, which follow.

@@ -44,14 +44,6 @@ pub fn ensure_system_packages() -> Result<()> {
     Ok(())
 }
 
-/// Node and npm, for the Foxglove ws-protocol peer (apt: not to run beside another apt step).
-pub fn ensure_node() -> Result<()> {
-    if !which("npm") || !which("node") {
-        apt_install(&["nodejs", "npm"])?;
-    }
-    Ok(())
-}
-
 /// Create / update `target/peers-venv` from `tests/peers/requirements.txt`; returns its python.
 pub fn peer_venv() -> Result<PathBuf> {
     let venv = root().join("target").join("peers-venv");
@@ -83,7 +75,10 @@ pub fn peer_node() -> Result<PathBuf> {
     if modules.exists() && std::fs::read_to_string(&stamp).ok().as_deref() == Some(lock.as_str()) {
         return Ok(modules);
     }
-    ensure_node()?;
+    if !which("npm") || !which("node") {
+        // The Foxglove ws-protocol peer needs them.
+        apt_install(&["nodejs", "npm"])?;
+    }
     std::fs::create_dir_all(&dir)?;
     for f in ["package.json", "package-lock.json"] {
         std::fs::copy(src.join(f), dir.join(f)).with_context(|| format!("copying tests/peers/node/{f}"))?;
