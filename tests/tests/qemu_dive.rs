@@ -98,20 +98,16 @@ fn five_minute_dive_with_injected_faults_completes_and_reports_them() {
 /// the STM32 board, with 1,100 B of static RAM, is estimated 0.7 KiB over the goal).
 #[test]
 fn the_stack_peak_is_painted_and_reported() {
-    use subnav_link::qemu::{QemuConfig, QemuEvent, run_with_bus};
+    use subnav_link::qemu::{Downlinker, QemuEvent};
     let sc = Scenario { duration_s: 12.0, ..Scenario::default() };
-    let mut cfg = QemuConfig::new(elf());
-    cfg.run_ms = Some(12_000);
-    cfg.timeout = Duration::from_secs(300);
-    cfg.board_args = sc.board_args();
     let mut logs = Vec::new();
-    let (outcome, _) = run_with_bus(&cfg, Box::new(subnav_sil::SimHead::new(&sc)), |e, _| {
+    let mut hook = |e: &QemuEvent, _: &mut Downlinker| {
         if let QemuEvent::Log(l) = e {
-            logs.push(l.message);
+            logs.push(l.message.clone());
         }
-    })
-    .expect("QEMU run");
-    assert_eq!(outcome.exit_code, Some(0));
+    };
+    let out = HeadRun::qemu(&sc, &elf()).timeout(Duration::from_secs(300)).qemu_events(&mut hook).run().expect("QEMU run");
+    assert_eq!(out.exit_code, Some(0));
     let line = logs.iter().find(|l| l.starts_with("stack peak")).unwrap_or_else(|| panic!("no stack report in {logs:?}"));
     let words: Vec<&str> = line.split_whitespace().collect();
     let (peak, size): (u32, u32) = (words[2].parse().unwrap(), words[5].parse().unwrap());

@@ -7,8 +7,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use subnav_link::LinkEvent;
-use subnav_link::qemu::{Downlinker, QemuConfig, QemuEvent, run_with_bus};
+use subnav_link::qemu::{Downlinker, QemuEvent};
 use subnav_sil::chips::w25q::W25qModel;
+use subnav_sil::run::HeadRun;
 use subnav_sil::{Scenario, SimHead};
 use subnav_wire::{
     Command, CommandAck, ConfigItem, FaultKind, FaultSource, PolarizationCalibration, Record, RecordKey, Refusal, StoreStatus, Uplink,
@@ -27,27 +28,28 @@ fn calibration(unit: u8, gain: f32) -> Record {
 /// Run the head for `run_ms` on the flash in `flash`, sending `commands` after Boot.
 fn run(flash: &Path, run_ms: u64, commands: &[Command]) -> Vec<Uplink> {
     let sc = Scenario { seed: 1, duration_s: run_ms as f64 / 1000.0, ..Default::default() };
-    let mut cfg = QemuConfig::new(subnav_tests::qemu_elf());
-    cfg.run_ms = Some(run_ms);
-    cfg.timeout = Duration::from_secs(120);
-    cfg.board_args = sc.board_args();
     let head = SimHead::new(&sc).with_flash(W25qModel::with_file(flash).expect("flash image"));
-    let mut msgs = Vec::new();
     let mut sent = false;
-    let (outcome, _) = run_with_bus(&cfg, Box::new(head), |e, down: &mut Downlinker| {
-        if let QemuEvent::Link(LinkEvent::Message(m)) = e {
-            if matches!(m, Uplink::Boot(_)) && !sent {
+    let mut after_boot = |e: &QemuEvent, down: &mut Downlinker| {
+        if let QemuEvent::Link(LinkEvent::Message(Uplink::Boot(_))) = e {
+            if !sent {
                 sent = true;
                 for c in commands {
                     down.send(*c).expect("send a command");
                 }
             }
-            msgs.push(m);
         }
-    })
-    .expect("QEMU run");
-    assert!(outcome.success(), "the head must run to the end: {outcome:?}");
-    msgs
+    };
+    let out = HeadRun::qemu(&sc, &subnav_tests::qemu_elf())
+        .on_head(head)
+        .keep_all()
+        .run_ms(run_ms)
+        .timeout(Duration::from_secs(120))
+        .qemu_events(&mut after_boot)
+        .run()
+        .expect("QEMU run");
+    assert_eq!(out.exit_code, Some(0), "the head must run to the end");
+    out.messages
 }
 
 fn boot(msgs: &[Uplink]) -> subnav_wire::Boot {

@@ -16,8 +16,9 @@ use std::time::Duration;
 
 use subnav_base::trajectory::Lawnmower;
 use subnav_link::LinkEvent;
-use subnav_link::qemu::{Downlinker, QemuConfig, QemuEvent, run_with_bus};
-use subnav_sil::{Scenario, SimHead};
+use subnav_link::qemu::{Downlinker, QemuEvent};
+use subnav_sil::Scenario;
+use subnav_sil::run::HeadRun;
 use subnav_wire::{Command, NavMode, NavSolution, ResetCause, Uplink};
 
 /// The dive: rest 8 s (the power-on alignment), descent to 10 m at 0.5 m/s, then 1 m/s on
@@ -41,16 +42,12 @@ struct Restart {
 
 fn run(warm: bool) -> Restart {
     let sc = scenario();
-    let mut cfg = QemuConfig::new(subnav_tests::qemu_elf());
-    cfg.run_ms = Some(RUN_MS);
-    cfg.timeout = Duration::from_secs(600);
-    cfg.board_args = sc.board_args();
-    cfg.board_args.push(format!("hang_at_ms={HANG_MS}"));
+    let mut board_args = vec![format!("hang_at_ms={HANG_MS}")];
     if !warm {
-        cfg.board_args.push("warm=0".into());
+        board_args.push("warm=0".into());
     }
     let mut r = Restart { boots: vec![], before: vec![], after: vec![], logs: vec![] };
-    let (outcome, _) = run_with_bus(&cfg, Box::new(SimHead::new(&sc)), |e, down: &mut Downlinker| match e {
+    let mut hook = |e: &QemuEvent, down: &mut Downlinker| match e {
         QemuEvent::Link(LinkEvent::Message(Uplink::Boot(b))) => {
             r.boots.push(b.reset_cause);
             // The board's configured start sets the dive's start time again at every boot; the
@@ -62,16 +59,23 @@ fn run(warm: bool) -> Restart {
         }
         QemuEvent::Link(LinkEvent::Message(Uplink::Nav(n))) => {
             if r.boots.len() > 1 {
-                r.after.push(n)
+                r.after.push(*n)
             } else {
-                r.before.push(n)
+                r.before.push(*n)
             }
         }
-        QemuEvent::Log(l) => r.logs.push(l.message),
+        QemuEvent::Log(l) => r.logs.push(l.message.clone()),
         _ => {}
-    })
-    .expect("QEMU run");
-    assert!(outcome.success(), "the head must run to the end: {outcome:?}\n{}", r.logs.join("\n"));
+    };
+    // The scenario's own head (its fixes, none here); the board runs `RUN_MS` after each boot.
+    let out = HeadRun::qemu(&sc, &subnav_tests::qemu_elf())
+        .run_ms(RUN_MS)
+        .board_args(board_args)
+        .timeout(Duration::from_secs(600))
+        .qemu_events(&mut hook)
+        .run()
+        .expect("QEMU run");
+    assert_eq!(out.exit_code, Some(0), "the head must run to the end\n{}", r.logs.join("\n"));
     assert_eq!(r.boots, vec![ResetCause::PowerOn, ResetCause::Watchdog], "one power-on and one watchdog boot");
     r
 }

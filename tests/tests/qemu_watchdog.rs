@@ -8,8 +8,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use subnav_link::LinkEvent;
-use subnav_link::qemu::{Downlinker, QemuConfig, QemuEvent, run_with_bus};
+use subnav_link::qemu::{Downlinker, QemuEvent};
 use subnav_sil::chips::w25q::W25qModel;
+use subnav_sil::run::HeadRun;
 use subnav_sil::{Scenario, SimHead};
 use subnav_wire::{Boot, Command, ConfigItem, NavMode, ResetCause, StoreStatus, Uplink};
 
@@ -17,30 +18,30 @@ use subnav_wire::{Boot, Command, ConfigItem, NavMode, ResetCause, StoreStatus, U
 /// first Boot. Returns the messages and the log lines.
 fn run(flash: &Path, run_ms: u64, extra: &[&str], commands: &[Command]) -> (Vec<Uplink>, Vec<String>) {
     let sc = Scenario { seed: 3, duration_s: 60.0, ..Default::default() };
-    let mut cfg = QemuConfig::new(subnav_tests::qemu_elf());
-    cfg.run_ms = Some(run_ms);
-    cfg.timeout = Duration::from_secs(600);
-    cfg.board_args = sc.board_args();
-    cfg.board_args.extend(extra.iter().map(|s| s.to_string()));
     let head = SimHead::new(&sc).with_flash(W25qModel::with_file(flash).expect("flash image"));
-    let (mut msgs, mut logs) = (Vec::new(), Vec::new());
+    let mut logs = Vec::new();
     let mut sent = false;
-    let (outcome, _) = run_with_bus(&cfg, Box::new(head), |e, down: &mut Downlinker| match e {
-        QemuEvent::Link(LinkEvent::Message(m)) => {
-            if matches!(m, Uplink::Boot(_)) && !sent {
-                sent = true;
-                for c in commands {
-                    down.send(*c).expect("send a command");
-                }
+    let mut hook = |e: &QemuEvent, down: &mut Downlinker| match e {
+        QemuEvent::Link(LinkEvent::Message(Uplink::Boot(_))) if !sent => {
+            sent = true;
+            for c in commands {
+                down.send(*c).expect("send a command");
             }
-            msgs.push(m);
         }
-        QemuEvent::Log(l) => logs.push(l.message),
+        QemuEvent::Log(l) => logs.push(l.message.clone()),
         _ => {}
-    })
-    .expect("QEMU run");
-    assert!(outcome.success(), "the head must run to the end: {outcome:?}\n{}", logs.join("\n"));
-    (msgs, logs)
+    };
+    let out = HeadRun::qemu(&sc, &subnav_tests::qemu_elf())
+        .on_head(head)
+        .keep_all()
+        .run_ms(run_ms)
+        .board_args(extra.iter().map(|s| s.to_string()))
+        .timeout(Duration::from_secs(600))
+        .qemu_events(&mut hook)
+        .run()
+        .expect("QEMU run");
+    assert_eq!(out.exit_code, Some(0), "the head must run to the end\n{}", logs.join("\n"));
+    (out.messages, logs)
 }
 
 #[test]

@@ -254,15 +254,19 @@ pub(crate) struct QemuRun<'a> {
     pub progress: Option<&'a dyn Fn(&LiveStatus)>,
     pub observer: Option<crate::run::Observer<'a>>,
     pub keep_all: bool,
+    pub board_args: Vec<String>,
+    pub run_ms: Option<u64>,
+    pub hook: Option<crate::run::QemuHook<'a>>,
 }
 
 /// Run `sc` with the QEMU firmware `elf`, on `head` or the scenario's own head (with its map in
 /// the loop and the recording's downlink tap).
-pub(crate) fn run_qemu(elf: &Path, sc: &Scenario, head: Option<SimHead>, opts: &QemuRun) -> Result<crate::run::RunOutput> {
+pub(crate) fn run_qemu(elf: &Path, sc: &Scenario, head: Option<SimHead>, mut opts: QemuRun) -> Result<crate::run::RunOutput> {
     let mut cfg = QemuConfig::new(elf);
-    cfg.run_ms = Some((sc.duration_s * 1000.0).round() as u64);
+    cfg.run_ms = Some(opts.run_ms.unwrap_or((sc.duration_s * 1000.0).round() as u64));
     cfg.timeout = opts.timeout;
     cfg.board_args = sc.board_args();
+    cfg.board_args.extend(opts.board_args.iter().cloned());
     let outage_head_us = sc.faults.host_outage_s.map(|(a, b)| ((a * 1e6) as u64, (b * 1e6) as u64));
     let recorder = opts.record.map(|p| QemuRecorder::start_with_host_outage(&mut cfg, p, outage_head_us)).transpose()?;
     let mut msgs = Vec::new();
@@ -285,7 +289,10 @@ pub(crate) fn run_qemu(elf: &Path, sc: &Scenario, head: Option<SimHead>, opts: &
     };
     let mut host = HostView::new(sc);
     let mut last_t_us = 0u64;
-    let result = run_with_bus(&cfg, Box::new(head), |e, _down| {
+    let result = run_with_bus(&cfg, Box::new(head), |e, down| {
+        if let Some(hook) = opts.hook.as_mut() {
+            hook(&e, down);
+        }
         if let QemuEvent::Link(LinkEvent::Message(m)) = e {
             last_t_us = m.t_us().unwrap_or(last_t_us);
             if !host.receives(&m) {

@@ -7,6 +7,8 @@
 //! sweeps used to pick among nine entry points with positional flags, and repeated the scoring
 //! call after each. The two targets differ only in where the firmware runs (`crate::sil` in
 //! process, `crate::dive` under QEMU); what a caller asks for is the same.
+//! (`subnav qemu`, the raw board with or without the simulated sensors, its link events and
+//! statistics printed as they come, runs on `subnav_link::qemu` directly.)
 //!
 //! ```no_run
 //! # fn main() -> anyhow::Result<()> {
@@ -22,6 +24,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
+use subnav_link::qemu::{Downlinker, QemuEvent};
 use subnav_wire::Uplink;
 
 use crate::chips::modem::LiveSource;
@@ -44,6 +47,11 @@ pub enum Target {
 /// message and the map in the loop. It only watches: the run is the same with or without.
 pub type Observer<'a> = &'a dyn Fn(u64, &Uplink, Option<&MapLoop>);
 
+/// QEMU: called with every event of the board (decoded messages, defmt log lines, link events)
+/// before the run handles it, with the board's command link to send commands on (e.g. after its
+/// `Boot`). The board-level tests use it (the watchdog, the store, the stack report).
+pub type QemuHook<'a> = &'a mut dyn FnMut(&QemuEvent, &mut Downlinker);
+
 /// A run of a simulated head, to be configured then [`run`](HeadRun::run).
 pub struct HeadRun<'a> {
     sc: &'a Scenario,
@@ -54,6 +62,9 @@ pub struct HeadRun<'a> {
     progress: Option<&'a dyn Fn(&LiveStatus)>,
     observer: Option<Observer<'a>>,
     downlink: Option<LiveSource>,
+    board_args: Vec<String>,
+    run_ms: Option<u64>,
+    qemu_hook: Option<QemuHook<'a>>,
 }
 
 /// What a run produced.
@@ -80,7 +91,19 @@ pub struct RunOutput {
 
 impl<'a> HeadRun<'a> {
     fn new(sc: &'a Scenario, target: Target) -> Self {
-        Self { sc, target, head: None, keep_all: false, record: None, progress: None, observer: None, downlink: None }
+        Self {
+            sc,
+            target,
+            head: None,
+            keep_all: false,
+            record: None,
+            progress: None,
+            observer: None,
+            downlink: None,
+            board_args: Vec::new(),
+            run_ms: None,
+            qemu_hook: None,
+        }
     }
 
     /// Run `sc` natively (the application core in process).
@@ -149,11 +172,33 @@ impl<'a> HeadRun<'a> {
         self
     }
 
+    /// QEMU: board options after the scenario's (e.g. `hang_at_ms=70000`, `warm=0`).
+    pub fn board_args(mut self, args: impl IntoIterator<Item = String>) -> Self {
+        self.board_args.extend(args);
+        self
+    }
+
+    /// QEMU: the board's own run length per boot (it counts on each boot's clock, so a board
+    /// that resets runs longer than the scenario); default the scenario's duration.
+    pub fn run_ms(mut self, ms: u64) -> Self {
+        self.run_ms = Some(ms);
+        self
+    }
+
+    /// QEMU: see [`QemuHook`].
+    pub fn qemu_events(mut self, hook: QemuHook<'a>) -> Self {
+        self.qemu_hook = Some(hook);
+        self
+    }
+
     /// Run to the scenario's end.
     pub fn run(self) -> Result<RunOutput> {
-        let HeadRun { sc, target, head, keep_all, record, progress, observer, downlink } = self;
+        let HeadRun { sc, target, head, keep_all, record, progress, observer, downlink, board_args, run_ms, qemu_hook } = self;
         match target {
             Target::Native => {
+                if !board_args.is_empty() || run_ms.is_some() || qemu_hook.is_some() {
+                    bail!("board options, a board run length and a QEMU event hook are for QEMU runs");
+                }
                 let run = crate::sil::run(sc, head, keep_all || record.is_some(), progress, observer, downlink);
                 let recordings = match record {
                     Some(p) => run.write_recording(p, sc).with_context(|| format!("writing the recording {}", p.display()))?,
@@ -168,8 +213,8 @@ impl<'a> HeadRun<'a> {
                 if !elf.is_file() {
                     bail!("firmware ELF {}: no such file (`cargo xtask build --board qemu` builds it)", elf.display());
                 }
-                let opts = crate::dive::QemuRun { record, timeout, progress, observer, keep_all };
-                crate::dive::run_qemu(&elf, sc, head, &opts).with_context(|| format!("running {} under QEMU", elf.display()))
+                let opts = crate::dive::QemuRun { record, timeout, progress, observer, keep_all, board_args, run_ms, hook: qemu_hook };
+                crate::dive::run_qemu(&elf, sc, head, opts).with_context(|| format!("running {} under QEMU", elf.display()))
             }
         }
     }
