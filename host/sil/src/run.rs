@@ -229,3 +229,42 @@ impl RunOutput {
             .with_recordings(&self.recordings)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn short() -> Scenario {
+        Scenario { duration_s: 1.0, ..Scenario::default() }
+    }
+
+    /// What one target cannot do is refused with the reason, before anything runs.
+    #[test]
+    fn options_of_the_other_target_are_refused() {
+        let sc = short();
+        let err = HeadRun::native(&sc).board_args(["warm=0".to_string()]).run().err().expect("refused").to_string();
+        assert!(err.contains("for QEMU runs"), "{err}");
+        let err = HeadRun::native(&sc).run_ms(10).run().err().expect("refused").to_string();
+        assert!(err.contains("for QEMU runs"), "{err}");
+        let elf = Path::new("/nonexistent/subnav-qemu.elf");
+        let err = HeadRun::qemu(&sc, elf).downlink(Box::new(|_| Vec::new())).run().err().expect("refused").to_string();
+        assert!(err.contains("native runs"), "{err}");
+        let err = HeadRun::qemu(&sc, elf).run().err().expect("refused").to_string();
+        assert!(err.contains("/nonexistent/subnav-qemu.elf") && err.contains("no such file"), "{err}");
+    }
+
+    /// A native run keeps the scored messages only unless told, and a recording implies all.
+    #[test]
+    fn what_a_native_run_keeps() {
+        let sc = short();
+        let lean = HeadRun::native(&sc).run().unwrap();
+        assert!(lean.frames.is_empty() && lean.messages.iter().all(crate::dive::scored));
+        assert_eq!(lean.exit_code, Some(0));
+        let dir = tempfile::tempdir().unwrap();
+        let rec = dir.path().join("r.snrec");
+        let full = HeadRun::native(&sc).record(&rec).run().unwrap();
+        assert!(!full.frames.is_empty() && full.messages.len() > lean.messages.len());
+        assert_eq!(full.recordings, vec![rec.clone()]);
+        assert!(rec.is_file());
+    }
+}
